@@ -1,0 +1,1 @@
+"""controller stage (SPEC §1); built by later issues."""

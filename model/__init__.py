@@ -1,0 +1,1 @@
+"""model stage (SPEC §1); built by later issues."""

@@ -1,0 +1,168 @@
+"""Route files: CARLA Leaderboard 2.0 route XML plus the SUMO edge list of each route.
+
+Layout (one file = one route set; the Leaderboard's parser reads it, ignoring ``<sumo>``)::
+
+    <routes set="town12_short" seed="1200" min_length="270" max_length="330">
+      <route id="0" town="town12">
+        <waypoints>
+          <position x="905.1" y="1010.3" z="0.0"/>  ...   (world frame, m)
+        </waypoints>
+        <scenarios>
+          <scenario name="ParkedObstacle_1" type="ParkedObstacle">
+            <trigger_point x="..." y="..." z="0.0" yaw="90.0"/>  (yaw: deg, CCW from +x)
+            <distance value="40.0"/> <variant value="accident"/> ...
+          </scenario>
+        </scenarios>
+        <sumo edges="d11_d12 d12_d02" depart_pos="10.00" arrival_pos="50.00" length="301.20"/>
+      </route>
+    </routes>
+
+The ``min_length``/``max_length`` attributes are the set's length bounds [m] (checked by
+``routes check``); ``length`` is the route length along the lanes, for reference.
+XML is parsed with defusedxml: DTDs and entities are refused (no entity expansion).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from xml.etree.ElementTree import Element, ParseError, SubElement, indent, tostring
+
+import defusedxml.ElementTree as SafeET
+from defusedxml import DefusedXmlException
+
+
+class RouteFileError(ValueError):
+    """A problem with a route file; ``route_id`` is None for file-level problems."""
+
+    def __init__(self, route_id: str | None, reason: str):
+        self.route_id, self.reason = route_id, reason
+        super().__init__(f"route {route_id}: {reason}" if route_id is not None else reason)
+
+
+@dataclass(frozen=True)
+class Hazard:
+    """One Leaderboard-style scenario of a route (see scenarios.hazards for types)."""
+
+    name: str
+    type: str
+    trigger: tuple[float, float, float, float]  # world x, y, z [m] and yaw [deg, CCW from +x]
+    params: dict[str, str] = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class Route:
+    """One route: Leaderboard keypoints, hazards and the SUMO edges it drives."""
+
+    id: str
+    town: str
+    waypoints: tuple[tuple[float, float, float], ...]  # world frame [m]
+    hazards: tuple[Hazard, ...]
+    edges: tuple[str, ...]
+    depart_pos: float  # [m] along the first edge's lane
+    arrival_pos: float  # [m] along the last edge's lane
+    length: float = math.nan  # [m] along the lanes, as written by the builder
+
+
+def _num(el: Element, key: str, rid: str | None) -> float:
+    raw = el.get(key)
+    if raw is None:
+        raise RouteFileError(rid, f"<{el.tag}> has no {key!r} attribute")
+    try:
+        v = float(raw)
+    except ValueError:
+        raise RouteFileError(rid, f"<{el.tag}> {key}={raw!r} is not a number") from None
+    if not math.isfinite(v):
+        raise RouteFileError(rid, f"<{el.tag}> {key}={raw!r} is not finite")
+    return v
+
+
+def parse_route(el: Element) -> Route:
+    """One ``<route>`` element -> Route; raises RouteFileError naming the route."""
+    rid = el.get("id")
+    if rid is None or not rid.strip():
+        raise RouteFileError(None, "a <route> has no id")
+    town = el.get("town")
+    if not town:
+        raise RouteFileError(rid, "no town attribute")
+    wps = el.find("waypoints")
+    if wps is None or len(wps.findall("position")) < 2:
+        raise RouteFileError(rid, "needs <waypoints> with at least two <position>")
+    waypoints = tuple((_num(p, "x", rid), _num(p, "y", rid), _num(p, "z", rid) if p.get("z") else 0.0)
+                      for p in wps.findall("position"))
+    hazards = []
+    for sc in (el.find("scenarios") if el.find("scenarios") is not None else []):
+        if sc.tag != "scenario":
+            continue
+        tp = sc.find("trigger_point")
+        if tp is None:
+            raise RouteFileError(rid, f"scenario {sc.get('name')!r} has no <trigger_point>")
+        trig = (_num(tp, "x", rid), _num(tp, "y", rid), float(tp.get("z", 0.0)), _num(tp, "yaw", rid))
+        params = {}
+        for child in sc:
+            if child.tag == "trigger_point":
+                continue
+            if child.get("value") is None:
+                raise RouteFileError(rid, f"scenario {sc.get('name')!r}: <{child.tag}> has no value")
+            params[child.tag] = child.get("value")
+        hazards.append(Hazard(sc.get("name", ""), sc.get("type", ""), trig, params))
+    sumo = el.find("sumo")
+    if sumo is None or not (sumo.get("edges") or "").split():
+        raise RouteFileError(rid, "no <sumo edges=...> edge list")
+    length = float(sumo.get("length")) if sumo.get("length") else math.nan
+    return Route(rid, town, waypoints, tuple(hazards), tuple(sumo.get("edges").split()),
+                 _num(sumo, "depart_pos", rid), _num(sumo, "arrival_pos", rid), length)
+
+
+def load_tree(path: Path) -> Element:
+    """Parse a route file safely; raises RouteFileError for unreadable or non-route XML."""
+    path = Path(path)
+    if not path.is_file():
+        raise RouteFileError(None, f"{path}: no such route file")
+    try:
+        root = SafeET.parse(str(path)).getroot()
+    except DefusedXmlException as exc:
+        raise RouteFileError(None, f"{path}: refused ({type(exc).__name__}: DTDs and entities are not allowed)") from None
+    except ParseError as exc:
+        raise RouteFileError(None, f"{path}: malformed XML ({exc})") from None
+    if root.tag != "routes":
+        raise RouteFileError(None, f"{path}: root element is <{root.tag}>, expected <routes>")
+    return root
+
+
+def read_routes(path: Path) -> tuple[dict[str, str], list[Route]]:
+    """(set attributes, routes) of a route file; raises RouteFileError on the first problem."""
+    root = load_tree(path)
+    routes = [parse_route(el) for el in root.findall("route")]
+    if not routes:
+        raise RouteFileError(None, f"{path}: no <route> elements")
+    return dict(root.attrib), routes
+
+
+def _fmt(v: float) -> str:
+    return f"{v:.2f}"
+
+
+def write_routes(path: Path, meta: dict[str, str], routes: list[Route]) -> Path:
+    """Write routes in the layout above, atomically (temp file, then rename)."""
+    root = Element("routes", meta)
+    for r in routes:
+        el = SubElement(root, "route", {"id": r.id, "town": r.town})
+        wps = SubElement(el, "waypoints")
+        for x, y, z in r.waypoints:
+            SubElement(wps, "position", {"x": _fmt(x), "y": _fmt(y), "z": _fmt(z)})
+        scs = SubElement(el, "scenarios")
+        for h in r.hazards:
+            sc = SubElement(scs, "scenario", {"name": h.name, "type": h.type})
+            x, y, z, yaw = h.trigger
+            SubElement(sc, "trigger_point", {"x": _fmt(x), "y": _fmt(y), "z": _fmt(z), "yaw": _fmt(yaw)})
+            for k, v in h.params.items():
+                SubElement(sc, k, {"value": v})
+        SubElement(el, "sumo", {"edges": " ".join(r.edges), "depart_pos": _fmt(r.depart_pos),
+                                "arrival_pos": _fmt(r.arrival_pos), "length": _fmt(r.length)})
+    indent(root, "  ")
+    path = Path(path)
+    tmp = path.with_suffix(path.suffix + ".tmp")
+    tmp.write_bytes(b'<?xml version="1.0" encoding="UTF-8"?>\n' + tostring(root, encoding="utf-8") + b"\n")
+    tmp.replace(path)
+    return path

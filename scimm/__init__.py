@@ -1,0 +1,1 @@
+"""scimm stage (SPEC §1); built by later issues."""

@@ -1,0 +1,115 @@
+"""``sumo-scimm routes check`` and other bad input: one line naming the route and the
+reason, exit code 2, no traceback (SPEC §2.2, §12)."""
+from __future__ import annotations
+
+import contextlib
+import io
+
+import pytest
+from hypothesis import given, settings, strategies as st
+
+from harness.cli import main
+from scenarios import set_path
+
+SMOKE = set_path("town12_smoke").read_text()
+
+
+def _run(capsys, *argv):
+    code = main(list(argv))
+    out, err = capsys.readouterr()
+    return code, out + err
+
+
+def _bad(tmp_path, text):
+    p = tmp_path / "bad.xml"
+    p.write_text(text)
+    return str(p)
+
+
+def _one_line(output: str) -> str:
+    lines = [ln for ln in output.splitlines() if ln.strip()]
+    assert len(lines) == 1, output
+    assert "Traceback" not in output
+    return lines[0]
+
+
+def test_valid_file_passes(capsys):
+    code, out = _run(capsys, "routes", "check", str(set_path("town12_smoke")))
+    assert code == 0 and "4 routes OK" in out
+
+
+def test_malformed_xml(tmp_path, capsys):
+    code, out = _run(capsys, "routes", "check", _bad(tmp_path, SMOKE[: len(SMOKE) // 2]))
+    assert code == 2
+    assert "malformed XML" in _one_line(out)
+
+
+def test_unknown_town(tmp_path, capsys):
+    text = SMOKE.replace('<route id="2" town="town12">', '<route id="2" town="town99">')
+    code, out = _run(capsys, "routes", "check", _bad(tmp_path, text))
+    line = _one_line(out)
+    assert code == 2 and "route 2:" in line and "unknown town 'town99'" in line
+
+
+def test_disconnected_route(tmp_path, capsys):
+    # route 1 drives h33_h32 h32_h22; replace its second edge by one far away
+    text = SMOKE.replace('edges="h33_h32 h32_h22"', 'edges="h33_h32 d00_d01"')
+    assert text != SMOKE
+    code, out = _run(capsys, "routes", "check", _bad(tmp_path, text))
+    line = _one_line(out)
+    assert code == 2 and "route 1:" in line and "not connected" in line
+
+
+def test_unknown_hazard_type(tmp_path, capsys):
+    text = SMOKE.replace('type="ParkedObstacle"', 'type="FlyingSaucer"')
+    code, out = _run(capsys, "routes", "check", _bad(tmp_path, text))
+    line = _one_line(out)
+    assert code == 2 and "route 3:" in line and "unknown hazard type 'FlyingSaucer'" in line
+
+
+def test_length_outside_set_bounds(tmp_path, capsys):
+    text = SMOKE.replace('max_length="220"', 'max_length="150"')
+    code, out = _run(capsys, "routes", "check", _bad(tmp_path, text))
+    assert code == 2
+    assert all("outside the set's bounds" in ln for ln in out.splitlines())
+
+
+def test_entity_expansion_is_refused(tmp_path, capsys):
+    bomb = ('<?xml version="1.0"?>\n<!DOCTYPE r [<!ENTITY a "aaaaaaaaaa">'
+            '<!ENTITY b "&a;&a;&a;&a;&a;&a;&a;&a;&a;&a;"><!ENTITY c "&b;&b;&b;&b;&b;&b;&b;&b;&b;&b;">]>\n'
+            '<routes><route id="&c;" town="town12"/></routes>\n')
+    code, out = _run(capsys, "routes", "check", _bad(tmp_path, bomb))
+    assert code == 2 and "refused" in _one_line(out)
+
+
+def test_missing_file_and_unknown_set_and_town(capsys, tmp_path):
+    code, out = _run(capsys, "routes", "check", str(tmp_path / "nope.xml"))
+    assert code == 2 and "no such route file" in _one_line(out)
+    code, out = _run(capsys, "routes", "show", "town13_short")
+    assert code == 2 and "unknown route set 'town13_short'" in _one_line(out)
+    code, out = _run(capsys, "nets", "show", "--town", "town99")
+    assert code == 2 and "unknown town 'town99'" in _one_line(out)
+    code, out = _run(capsys, "routes", "make", "--set", "nonsense")
+    assert code == 2 and "unknown set 'nonsense'" in _one_line(out)
+
+
+def test_bad_option_is_one_line(capsys):
+    code, out = _run(capsys, "nets", "build", "--seed", "abc")
+    assert code == 2 and "invalid int value" in _one_line(out)
+
+
+@settings(max_examples=40, deadline=None)
+@given(cut=st.integers(min_value=0, max_value=len(SMOKE) - 1), junk=st.text(max_size=20))
+def test_any_damaged_file_gives_lines_and_exit_2_never_a_traceback(tmp_path_factory, cut, junk):
+    """Truncate the smoke file anywhere and append junk: check never raises; a file cut
+    before its closing tag fails with exit 2, and every line it prints names the file."""
+    p = tmp_path_factory.mktemp("fuzz") / "f.xml"
+    p.write_text(SMOKE[:cut] + junk)
+    buf = io.StringIO()
+    with contextlib.redirect_stdout(buf), contextlib.redirect_stderr(buf):
+        code = main(["routes", "check", str(p)])
+    if "</routes>" not in SMOKE[:cut]:
+        assert code == 2
+    lines = buf.getvalue().splitlines()
+    assert lines and all(ln.startswith(str(p)) or ln.startswith("sumo-scimm: error") for ln in lines)
+    assert "Traceback" not in buf.getvalue()

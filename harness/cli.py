@@ -8,10 +8,13 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 from pathlib import Path
 
 from tqdm import tqdm
+
+from harness.agent import DEFAULT_AGENT
 
 EXIT_BAD_INPUT = 2
 
@@ -85,6 +88,94 @@ def _routes_show(args: argparse.Namespace) -> int:
     return 0
 
 
+# --- eval -------------------------------------------------------------------------------
+def _subset(spec: str | None, ids: list[str]) -> list[str]:
+    """Route ids selected by --routes-subset: "3", "0-9", "1,4,7" or a mix."""
+    if not spec:
+        return ids
+    chosen: list[str] = []
+    for part in spec.split(","):
+        part = part.strip()
+        if "-" in part and all(p.strip().isdigit() for p in part.split("-", 1)):
+            a, b = (int(p) for p in part.split("-", 1))
+            chosen += [i for i in ids if i.isdigit() and a <= int(i) <= b]
+        elif part in ids:
+            chosen.append(part)
+        else:
+            raise BadInput(f"--routes-subset: no route {part!r} in the set")
+    return [i for i in ids if i in set(chosen)]
+
+
+def _eval(args: argparse.Namespace) -> int:
+    from harness.agent import AgentLoadError, load_agent
+    from harness.runner import Job, route_seed, run_eval
+    from scenarios import resolve_set
+    from scenarios.check import check_file
+    from scenarios.routefile import read_routes
+    path = resolve_set(args.routes)
+    _, problems = check_file(path)
+    if problems:
+        raise BadInput(f"{path}: {problems[0]} (run 'sumo-scimm routes check {path}')")
+    if args.workers < 1 or args.repetitions < 1:
+        raise BadInput("--workers and --repetitions must be >= 1")
+    if args.agent_config and not Path(args.agent_config).is_file():
+        raise BadInput(f"--agent-config {args.agent_config!r} does not exist")
+    try:
+        load_agent(args.agent)
+    except AgentLoadError as exc:
+        raise BadInput(str(exc)) from None
+    _, routes = read_routes(path)
+    keep = set(_subset(args.routes_subset, [r.id for r in routes]))
+    routes = [r for r in routes if r.id in keep]
+    out = Path(args.out) if args.out else Path("runs") / f"{path.stem}_{args.agent.replace(':', '.')}"
+    if not args.resume and (out / "records.jsonl").exists() and (out / "records.jsonl").stat().st_size:
+        raise BadInput(f"{out} already holds a run: add --resume to finish it, or choose another --out")
+    jobs = [Job(k, r, rep, args.agent, args.agent_config, route_seed(args.seed, k), str(out / "logs"))
+            for k, (rep, r) in enumerate((rep, r) for rep in range(args.repetitions) for r in routes)]
+    records = run_eval(jobs, out, args.workers, args.resume)
+    statuses: dict[str, int] = {}
+    for r in records:
+        statuses[r["status"]] = statuses.get(r["status"], 0) + 1
+    mean_rc = sum(r["rc"] for r in records) / max(len(records), 1)
+    print(f"{len(records)} routes -> {out}: mean RC {mean_rc:.2f}; "
+          + ", ".join(f"{k} {v}" for k, v in sorted(statuses.items())))
+    return 0
+
+
+def _render(args: argparse.Namespace) -> int:
+    from harness.agent import AgentLoadError, load_agent
+    from harness.render import render_route
+    from harness.runner import route_seed
+    from scenarios import resolve_set
+    from scenarios.routefile import read_routes
+    path = resolve_set(args.routes)
+    _, routes = read_routes(path)
+    ids = [r.id for r in routes]
+    if args.route not in ids:
+        raise BadInput(f"route {args.route!r} is not in {path.name} (ids {ids[0]}..{ids[-1]})")
+    if not args.out.endswith(".mp4"):
+        raise BadInput(f"--out {args.out!r} must end in .mp4 (a PNG of the path is written beside it)")
+    try:
+        load_agent(args.agent)
+    except AgentLoadError as exc:
+        raise BadInput(str(exc)) from None
+    k = ids.index(args.route)
+    res, png = render_route(routes[k], args.agent, args.agent_config, route_seed(args.seed, k), Path(args.out))
+    print(f"route {args.route}: {res.status}, RC {res.rc:.2f}, {res.game_time:.1f} s -> {args.out}, {png}")
+    return 0
+
+
+def _bench(args: argparse.Namespace) -> int:
+    from harness.bench import bench_json, format_bench, run_bench
+    if args.routes_count < 1:
+        raise BadInput("--routes-count must be >= 1")
+    r = run_bench(args.routes, args.routes_count)
+    print(format_bench(r))
+    if args.json:
+        Path(args.json).write_text(bench_json(r) + "\n")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = _Parser(prog="sumo-scimm", description="Closed-loop driving benchmark on SUMO with "
                 "Leaderboard 2.0 scoring and SC-IMM teacher signals.")
@@ -115,6 +206,33 @@ def build_parser() -> argparse.ArgumentParser:
     w = rsub.add_parser("show", help="table of a route set: id, town, length, hazards")
     w.add_argument("name", help="set name or route file")
     w.set_defaults(func=_routes_show)
+    e = sub.add_parser("eval", help="drive a route set with an agent in closed loop")
+    e.add_argument("--routes", required=True, help="route set name (e.g. town12_short) or route file")
+    e.add_argument("--routes-subset", help="route ids to run: '3', '0-9', '1,4,7'")
+    e.add_argument("--repetitions", type=int, default=1, help="runs per route (default 1)")
+    e.add_argument("--agent", default=DEFAULT_AGENT, help=f"agent name or module:Class (default {DEFAULT_AGENT})")
+    e.add_argument("--agent-config", help="file passed to the agent's setup()")
+    e.add_argument("--workers", type=int, default=os.cpu_count() or 1,
+                   help="worker processes, one libsumo each (default: number of cores)")
+    e.add_argument("--out", help="run folder (default runs/<set>_<agent>)")
+    e.add_argument("--resume", action="store_true", help="finish an interrupted run in --out")
+    e.add_argument("--seed", type=int, default=0, help="run seed; each route derives its own (default 0)")
+    e.set_defaults(func=_eval)
+
+    r = sub.add_parser("render", help="video of the BEV while an agent drives one route, and a path PNG")
+    r.add_argument("--routes", required=True, help="route set name or route file")
+    r.add_argument("--route", required=True, help="route id")
+    r.add_argument("--agent", default=DEFAULT_AGENT, help=f"agent (default {DEFAULT_AGENT})")
+    r.add_argument("--agent-config", help="file passed to the agent's setup()")
+    r.add_argument("--out", required=True, help="video file (.mp4); the path PNG goes beside it")
+    r.add_argument("--seed", type=int, default=0, help="run seed, as in eval (default 0)")
+    r.set_defaults(func=_render)
+
+    bn = sub.add_parser("bench", help="performance figures beside their references (SPEC §11)")
+    bn.add_argument("--routes", default="town12_smoke", help="route set to time (default town12_smoke)")
+    bn.add_argument("--routes-count", type=int, default=4, help="routes of the set to run (default 4)")
+    bn.add_argument("--json", help="also write the figures as JSON to this file")
+    bn.set_defaults(func=_bench)
     return p
 
 

@@ -46,6 +46,7 @@ class Passage:
     direction: str  # SUMO link direction: s (straight), r, l, R, L, t
     state: str  # SUMO link state: M/m (major/minor), s (stop), w (all-way stop), o (signal)
     tls: str  # id of the traffic light program, "" if none
+    link: int  # index of the route's link in that program's state string, -1 if none
     from_edge: str
     to_edge: str
     s_in: float
@@ -225,7 +226,8 @@ def trace(net: sumolib.net.Net, edges: list[str], depart_pos: float,
                 s += _arclen(p)[-1]
             node = c.getJunction() or e.getToNode()
             passages.append(Passage(node.getID(), node.getType(), c.getDirection(), c.getState(),
-                                    c.getTLSID() or "", e.getID(), objs[i + 1].getID(), s_in, s))
+                                    c.getTLSID() or "", c.getTLLinkIndex() if c.getTLSID() else -1,
+                                    e.getID(), objs[i + 1].getID(), s_in, s))
     raw = np.vstack(pieces)
     keep = np.concatenate(([True], np.hypot(*np.diff(raw, axis=0).T) > 1e-9))
     raw = raw[keep]

@@ -1,0 +1,99 @@
+"""Route-ending criteria of the CARLA Leaderboard 2.0, evaluated every tick
+(notes leaderboard2.md §2.3 and §4; constants as in the leaderboard).
+
+Each criterion keeps its own monotone index into the 1 m dense route (window rules of
+§2.2) and answers ``update(...) -> status or None``; the first non-None ends the route.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from harness.plan import GlobalPlan, Progress
+
+# Leaderboard status texts (statistics_manager.py)
+COMPLETED = "Completed"
+FAILED_DEVIATION = "Failed - Agent deviated from the route"
+FAILED_BLOCKED = "Failed - Agent got blocked"
+FAILED_TIMEOUT = "Failed - Agent timed out"
+FAILED_AGENT = "Failed - Agent crashed"
+FAILED_SIMULATION = "Failed - Simulation crashed"
+FAILED_SETUP = "Failed - Agent couldn't be set up"
+
+
+class RouteCompletion:
+    """RC = 100 * cum_dist[i] / length (2 decimals); success when RC > 99 and the ego is
+    within 10 m of the last dense point, and then RC = 100."""
+
+    DONE_RC, DONE_DIST = 99.0, 10.0
+
+    def __init__(self, plan: GlobalPlan):
+        self.plan, self.progress = plan, Progress(plan, window=3)
+        self.rc = 0.0
+
+    def update(self, x: float, y: float) -> str | None:
+        i = self.progress.update(x, y)
+        self.rc = round(100.0 * self.plan.s[i] / self.plan.length, 2)
+        end = self.plan.xy[-1]
+        if self.rc > self.DONE_RC and np.hypot(x - end[0], y - end[1]) < self.DONE_DIST:
+            self.rc = 100.0
+            return COMPLETED
+        return None
+
+
+class InRoute:
+    """Deviation: nearest dense point in i..i+5 (2D); >= 30 m ends the route; advancing
+    while >= 15 m away adds to the off-route distance, > 30 % of the route ends it."""
+
+    MAX_DIST, SAFE_DIST, MAX_SHARE, WINDOW = 30.0, 15.0, 0.30, 6
+
+    def __init__(self, plan: GlobalPlan):
+        self.plan, self.index, self.out = plan, 0, 0.0
+
+    def update(self, x: float, y: float) -> str | None:
+        i = self.index
+        pts = self.plan.xy[i:i + self.WINDOW]
+        d = np.hypot(pts[:, 0] - x, pts[:, 1] - y)
+        k = int(np.flatnonzero(d == d.min())[-1])  # ties go to the later point
+        if d[k] >= self.MAX_DIST:
+            return FAILED_DEVIATION
+        if k > 0:
+            if d[k] >= self.SAFE_DIST:
+                self.out += float(self.plan.s[i + k] - self.plan.s[i])
+            self.index = i + k
+        if self.out / self.plan.length > self.MAX_SHARE:
+            return FAILED_DEVIATION
+        return None
+
+
+class Blocked:
+    """Speed < 0.1 m/s for more than 180 s (Leaderboard 2.0) ends the route."""
+
+    SPEED, MAX_TIME = 0.1, 180.0
+
+    def __init__(self, max_time: float = MAX_TIME):
+        self.max_time, self.since = max_time, 0.0
+
+    def update(self, speed: float, time: float) -> str | None:
+        if speed >= self.SPEED:
+            self.since = time
+        elif time - self.since > self.max_time:
+            return FAILED_BLOCKED
+        return None
+
+
+class RouteTimeout:
+    """Budget 300 s, growing by d / (0.1 v_limit) as the route index advances (window
+    i..i+3); ends the route when game time exceeds it."""
+
+    BASE, FACTOR = 300.0, 0.1
+
+    def __init__(self, plan: GlobalPlan):
+        self.plan, self.progress, self.budget = plan, Progress(plan, window=4), self.BASE
+
+    def update(self, x: float, y: float, time: float) -> str | None:
+        i0 = self.progress.index
+        i1 = self.progress.update(x, y)
+        if i1 > i0:
+            ds = np.diff(self.plan.s[i0:i1 + 1])
+            self.budget += float(np.sum(ds / (self.FACTOR * self.plan.speed_limit[i0 + 1:i1 + 1])))
+        return FAILED_TIMEOUT if time > self.budget else None

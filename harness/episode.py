@@ -1,0 +1,220 @@
+"""One episode = one route in libsumo at 0.05 s steps (SPEC §3).
+
+Each tick, as in the leaderboard: the agent decides on the state after the last step
+(sensors built from one snapshot), the harness integrates the ego with the vehicle
+model and mirrors it into SUMO, hazards advance, SUMO steps, the new snapshot is read,
+contacts and route-ending criteria are evaluated, and everything goes into the log.
+
+An exception in the agent, or a Control with NaN/inf, ends the route as
+"Failed - Agent crashed"; the log up to that tick is kept.
+"""
+from __future__ import annotations
+
+import math
+import time as wallclock
+import traceback
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from controller.vehicle import DT, LENGTH, WIDTH, Control, EgoState, EgoVehicle
+from harness import criteria
+from harness.agent import Prediction, load_agent, split_output, validate_sensors
+from harness.contacts import overlaps
+from harness.hazard_actors import HazardActor
+from harness.plan import GlobalPlan, build_plan, to_ego
+from harness.traffic import BackgroundTraffic
+from harness.world import STATIC, Snapshot, World
+from scenarios.routefile import Route
+from sumo_nets import load_net
+
+TLS_CODES = "rRyYgGsuoO"  # SUMO link states; logged as their index, -1 when not applicable
+
+
+@dataclass
+class EpisodeLog:
+    """Per-tick arrays of one episode (world frame, SI units) and its contact events."""
+
+    columns: dict[str, list] = field(default_factory=lambda: {k: [] for k in (
+        "t", "x", "y", "yaw", "v", "steer", "throttle", "brake", "route_index", "rc", "bg_speed")})
+    tls: list[list[int]] = field(default_factory=list)  # per tick, state code of each route light
+    contacts: list[tuple[int, str, int]] = field(default_factory=list)  # (tick, actor id, class)
+    path: list[np.ndarray] = field(default_factory=list)  # predicted path per tick (20, 2) or nan
+    speed_wps: list[np.ndarray] = field(default_factory=list)  # predicted speed wps (10, 2) or nan
+
+    def arrays(self) -> dict[str, np.ndarray]:
+        out = {k: np.asarray(v, dtype=float) for k, v in self.columns.items()}
+        out["tls"] = np.asarray(self.tls, dtype=np.int8).reshape(len(self.columns["t"]), -1)
+        out["contact_tick"] = np.array([c[0] for c in self.contacts], dtype=np.int32)
+        out["contact_actor"] = np.array([c[1] for c in self.contacts], dtype=str)
+        out["contact_class"] = np.array([c[2] for c in self.contacts], dtype=np.int8)
+        out["pred_path"] = np.asarray(self.path, dtype=np.float32).reshape(-1, 20, 2)
+        out["pred_speed_wps"] = np.asarray(self.speed_wps, dtype=np.float32).reshape(-1, 10, 2)
+        return out
+
+
+@dataclass
+class EpisodeResult:
+    status: str
+    rc: float
+    game_time: float
+    wall_time: float
+    steps: int
+    message: str
+    log: EpisodeLog
+    length: float  # route length along the lanes [m]
+    loop_time: float = 0.0  # wall time of the tick loop alone [s] (no start-up, no teardown)
+
+
+def _inputs(specs: list[dict], ego: EgoState, plan: GlobalPlan, progress: int, snap: Snapshot,
+            world_view, bev_fn) -> dict:
+    data = {}
+    for spec in specs:
+        t = spec["type"]
+        if t == "speed":
+            data[spec["id"]] = ego.v
+        elif t == "pose":
+            data[spec["id"]] = (ego.x, ego.y, ego.yaw)
+        elif t == "target_point":
+            data[spec["id"]] = to_ego(plan.xy[plan.target_point(progress)], ego.x, ego.y, ego.yaw)
+        elif t == "command":
+            data[spec["id"]] = int(plan.command[progress])
+        elif t == "bev":
+            data[spec["id"]] = bev_fn()
+        elif t == "world":
+            data[spec["id"]] = world_view
+    return data
+
+
+def run_episode(route: Route, agent_name: str, agent_config: str | None, seed: int,
+                on_frame=None) -> EpisodeResult:
+    """Drive one route with an agent; ``seed`` fixes traffic, hazards, noise and SUMO.
+
+    ``on_frame(tick, ego, snapshot, plan, prediction, lights)`` is called after every
+    tick (rendering); it must not change the simulation.
+    """
+    from harness.bev import BevRenderer  # the renderer pulls OpenCV; keep import local
+
+    wall0 = wallclock.perf_counter()
+    loop_time = 0.0
+    ss = np.random.SeedSequence(seed)
+    rng_traffic, rng_hazard, rng_ego = (np.random.default_rng(s) for s in ss.spawn(3))
+    net = load_net(route.town)
+    plan = build_plan(route, net)
+    log = EpisodeLog()
+    world = World(route.town, int(ss.generate_state(1)[0] % (2**31 - 1)))
+    agent = None
+    status, message, tick = criteria.FAILED_SIMULATION, "", 0
+    try:
+        x0, y0, yaw0 = plan.path.pose(0.0)
+        lane0 = net.getLane(plan.path.legs[0].lane_in).getIndex()
+        world.add_ego(route.edges, lane0, route.depart_pos)
+        ego = EgoVehicle(EgoState(x0, y0, yaw0, 0.0), rng_ego)
+        hazards = [HazardActor(h, plan, net, rng_hazard, k) for k, h in enumerate(route.hazards)]
+        for h in hazards:
+            h.setup()
+        traffic = BackgroundTraffic(net, plan, rng_traffic)
+        traffic.populate()
+        world.move_ego(ego.state)
+        world.step()
+        snap = world.snapshot()
+        lights = [p for p in plan.passages if p.tls]
+        bev = BevRenderer.for_town(route.town)
+        try:
+            agent = load_agent(agent_name)
+            agent.set_global_plan(plan)
+            agent.setup(agent_config)
+            specs = agent.sensors()
+            validate_sensors(specs)
+        except Exception as exc:  # noqa: BLE001 - any agent failure is recorded, the run goes on
+            raise _AgentSetupError(f"{type(exc).__name__}: {exc}") from exc
+        done = criteria.RouteCompletion(plan)
+        in_route, blocked, timeout = criteria.InRoute(plan), criteria.Blocked(), criteria.RouteTimeout(plan)
+        props = [p for h in hazards for p in h.props]
+        end = None
+        loop0 = wallclock.perf_counter()
+        while end is None:
+            s = ego.state
+            progress = done.progress.index
+            lights_now = [_light_state(p) for p in lights]
+            try:
+                out = agent.run_step(_inputs(specs, s, plan, progress, snap, (snap, lights_now, props),
+                                             lambda: bev.render(s, snap, plan, lights_now, props)), world.time)
+                control, pred = split_output(out)
+                if not control.is_finite():
+                    raise ValueError(f"non-finite control {control}")
+            except Exception as exc:  # noqa: BLE001
+                status, message = criteria.FAILED_AGENT, f"{type(exc).__name__}: {exc}"
+                break
+            s = ego.step(control)
+            world.move_ego(s)
+            ego_s = float(plan.s[progress])
+            for h in hazards:
+                h.update(ego_s, world.time, s.v)
+            traffic.update()
+            world.step()
+            snap = world.snapshot()
+            tick += 1
+            end = (done.update(s.x, s.y) or in_route.update(s.x, s.y)
+                   or blocked.update(s.v, world.time) or timeout.update(s.x, s.y, world.time))
+            _log_tick(log, tick, world.time, s, control, pred, done, snap, lights_now, props)
+            if on_frame is not None:
+                on_frame(tick, s, snap, plan, pred, lights_now, props)
+        loop_time = wallclock.perf_counter() - loop0
+        if end is not None:
+            status = end
+        rc = done.rc
+    except _AgentSetupError as exc:
+        status, message, rc = criteria.FAILED_SETUP, str(exc), 0.0
+    except Exception as exc:  # noqa: BLE001 - a simulator failure ends this route only
+        status, message = criteria.FAILED_SIMULATION, f"{type(exc).__name__}: {exc}"
+        rc = log.columns["rc"][-1] if log.columns["rc"] else 0.0
+        message += "\n" + traceback.format_exc(limit=3)
+    finally:
+        if agent is not None:
+            try:
+                agent.destroy()
+            except Exception:  # noqa: BLE001 - destroy errors must not hide the route result
+                pass
+        world.close()
+    return EpisodeResult(status, float(rc), round(tick * DT, 3), wallclock.perf_counter() - wall0,
+                         tick, message, log, plan.length, loop_time)
+
+
+class _AgentSetupError(Exception):
+    pass
+
+
+def _light_state(p) -> int:
+    import libsumo
+    state = libsumo.trafficlight.getRedYellowGreenState(p.tls)
+    c = state[p.link] if 0 <= p.link < len(state) else "o"
+    return TLS_CODES.index(c) if c in TLS_CODES else -1
+
+
+def _log_tick(log: EpisodeLog, tick: int, t: float, s: EgoState, c: Control, pred: Prediction | None,
+              done: criteria.RouteCompletion, snap: Snapshot, lights: list[int], props: list) -> None:
+    col = log.columns
+    col["t"].append(t)
+    col["x"].append(s.x)
+    col["y"].append(s.y)
+    col["yaw"].append(s.yaw)
+    col["v"].append(s.v)
+    col["steer"].append(c.steer)
+    col["throttle"].append(c.throttle)
+    col["brake"].append(c.brake)
+    col["route_index"].append(done.progress.index)
+    col["rc"].append(done.rc)
+    col["bg_speed"].append(snap.background_speed)
+    log.tls.append(lights)
+    ego_box = (s.x, s.y, s.yaw, LENGTH, WIDTH)
+    hit = overlaps(ego_box, snap.xy, snap.yaw, snap.size)
+    for k in np.flatnonzero(hit):
+        log.contacts.append((tick, snap.ids[k], int(snap.cls[k])))
+    if props:
+        pa = np.array(props, dtype=float)
+        for k in np.flatnonzero(overlaps(ego_box, pa[:, :2], pa[:, 2], pa[:, 3:5])):
+            log.contacts.append((tick, f"prop{k}", STATIC))
+    nan_path, nan_wps = np.full((20, 2), np.nan), np.full((10, 2), np.nan)
+    log.path.append(pred.path if pred is not None and pred.path is not None else nan_path)
+    log.speed_wps.append(pred.speed_wps if pred is not None and pred.speed_wps is not None else nan_wps)

@@ -1,0 +1,296 @@
+"""Hazards in the running simulation (SPEC §2.3): each route hazard becomes an object
+that starts when the ego's route progress reaches its trigger point.
+
+Static things (the obstacle in the lane, the parked car hiding a jaywalker) exist from
+the start of the episode, as in the Leaderboard where scenario actors are spawned long
+before the ego arrives. Moving things start at the trigger:
+
+- PedestrianCrossing: walkers step onto the crosswalk from the chosen side.
+- DynamicObjectCrossing: a walker crosses the road at the site, perpendicular to it.
+- ParkedObstacle: a stopped vehicle (SUMO type ``obstacle_*``, class static) in the ego lane.
+- HardBreakRoute: a leader appears ``gap`` m ahead in the ego lane and brakes hard at the site.
+- ParkingCutIn: a vehicle pulls from the curb (or the left lane) into the ego lane ahead.
+- SignalizedJunction: the light of the ego's link is switched to the start of its red
+  phase, and cross traffic flows; StopSignJunction: cross traffic flows;
+  UnprotectedLeftTurn: oncoming traffic flows.
+
+Walkers and cut-in vehicles are moved by the harness (``moveToXY``) along straight
+scripted paths, then released. Positions are world frame [m]; s is route arc length [m].
+"""
+from __future__ import annotations
+
+import math
+
+import libsumo
+import numpy as np
+import sumolib
+
+from controller.vehicle import DT
+from harness.plan import GlobalPlan
+from harness.world import PERSON_PREFIX, sumo_angle
+from scenarios.routefile import Hazard
+
+CURB_MARGIN = 1.2  # walkers start / end this far beyond the road edge [m]
+FLOW_TIME = 25.0  # junction traffic keeps coming this long after the trigger [s]
+HOLD_TIME = 3.0  # a hard-braking leader stays stopped this long [s]
+# moveToXY for walkers: bit 1 (place exactly, off-lane too) + bit 2 (ignore permissions).
+# With keepRoute 0 or 2, SUMO 1.28 segfaulted in simulationStep when a walker was moved
+# across a crosswalk (town12_short route 29); 6 does not.
+PERSON_KEEP_ROUTE = 6
+
+
+def _leg_at(plan: GlobalPlan, s: float):
+    for g in plan.path.legs:
+        if g.s0 - 1e-6 <= s <= g.s1 + 1e-6:
+            return g
+    return None
+
+
+def _lane_pos(plan: GlobalPlan, net: sumolib.net.Net, s: float) -> tuple[str, int, float] | None:
+    """(edge, lane index, position along the lane [m]) of route s, if s lies on an edge."""
+    g = _leg_at(plan, s)
+    if g is None:
+        return None
+    lane = net.getLane(g.lane_in)
+    x, y, _ = plan.path.pose(s)
+    pos, _ = lane.getClosestLanePosAndDist((x, y))
+    return g.edge, lane.getIndex(), float(pos)
+
+
+def _road_sides(plan: GlobalPlan, net: sumolib.net.Net, s: float) -> tuple[float, float]:
+    """Distances [m] from the route centre to the right and left outer road borders at s
+    (sidewalks included, the opposite direction's edge included)."""
+    g = _leg_at(plan, s)
+    if g is None:
+        return 5.0, 5.0
+    edge, lane = net.getEdge(g.edge), net.getLane(g.lane_in)
+    widths = [ln.getWidth() for ln in edge.getLanes()]
+    i = lane.getIndex()
+    right = widths[i] / 2 + sum(widths[:i])
+    left = widths[i] / 2 + sum(widths[i + 1:])
+    rev = f"{edge.getToNode().getID()}_{edge.getFromNode().getID()}"
+    if net.hasEdge(rev):
+        left += sum(ln.getWidth() for ln in net.getEdge(rev).getLanes())
+    return right, left
+
+
+class Scripted:
+    """An actor moved by the harness from p0 to p1 at a constant speed [m/s]."""
+
+    def __init__(self, aid: str, p0: np.ndarray, p1: np.ndarray, speed: float, person: bool):
+        self.id, self.p0, self.p1, self.speed, self.person = aid, p0, p1, speed, person
+        self.dist = 0.0
+        self.total = float(np.hypot(*(p1 - p0)))
+        self.yaw = math.atan2(*(p1 - p0)[::-1])
+
+    def place(self) -> bool:
+        """Move one step along the path; False once the end is reached."""
+        f = min(self.dist / self.total, 1.0) if self.total > 0 else 1.0
+        x, y = self.p0 + f * (self.p1 - self.p0)
+        if self.person:
+            libsumo.person.moveToXY(self.id, "", x, y, sumo_angle(self.yaw), keepRoute=PERSON_KEEP_ROUTE)
+        else:
+            fx, fy = x + math.cos(self.yaw) * 2.3, y + math.sin(self.yaw) * 2.3
+            libsumo.vehicle.moveToXY(self.id, "", -1, fx, fy, sumo_angle(self.yaw), keepRoute=2)
+            libsumo.vehicle.setSpeed(self.id, self.speed)
+        self.dist += self.speed * DT
+        return f < 1.0
+
+
+def _add_person(pid: str, edge: str, x: float, y: float) -> None:
+    libsumo.person.add(pid, edge, 0.0)
+    libsumo.person.appendWaitingStage(pid, 10_000.0)
+    libsumo.person.moveToXY(pid, edge, x, y, keepRoute=PERSON_KEEP_ROUTE)
+
+
+class HazardActor:
+    """One hazard of a route in the running simulation."""
+
+    def __init__(self, h: Hazard, plan: GlobalPlan, net: sumolib.net.Net, rng: np.random.Generator, n: int):
+        self.h, self.plan, self.net, self.rng, self.n = h, plan, net, rng, n
+        self.trigger_s, _ = plan.path.project(h.trigger[0], h.trigger[1])
+        self.site_s = self.trigger_s + float(h.params["distance"])
+        self.started = False
+        self.t0 = 0.0
+        self.scripted: list[Scripted] = []
+        self.props: list[tuple[float, float, float, float, float]] = []  # x, y, yaw, length, width
+        self.spawned = 0
+        self.flow_next = 0.0
+        self.leader: str | None = None
+        self.brake_state = "drive"
+        self.released: list[Scripted] = []
+
+    @property
+    def tag(self) -> str:
+        return f"hz{self.n}"
+
+    # --- lifecycle -------------------------------------------------------------------
+    def setup(self) -> None:
+        """Place the static parts (called once before the first step)."""
+        t = self.h.type
+        if t == "ParkedObstacle":
+            loc = _lane_pos(self.plan, self.net, self.site_s)
+            if loc is None:
+                return
+            edge, lane, pos = loc
+            vt = f"obstacle_{self.h.params['variant']}"
+            vid = f"{self.tag}_obstacle"
+            libsumo.route.add(f"r_{vid}", [edge])
+            libsumo.vehicle.add(vid, f"r_{vid}", typeID=vt, departLane=str(lane),
+                                departPos=f"{pos:.2f}", departSpeed="0")
+            libsumo.vehicle.setSpeedMode(vid, 0)
+            libsumo.vehicle.setLaneChangeMode(vid, 0)
+            libsumo.vehicle.setSpeed(vid, 0.0)
+        elif t == "DynamicObjectCrossing" and self.h.params["blocker"] == "parked_car":
+            x, y, yaw = self.plan.path.pose(self.site_s - 6.0)
+            right, _ = _road_sides(self.plan, self.net, self.site_s)
+            off = right - 1.0  # mostly on the shoulder / sidewalk, a little in the lane
+            self.props.append((x + math.sin(yaw) * off, y - math.cos(yaw) * off, yaw, 4.6, 1.9))
+
+    def update(self, ego_s: float, time: float, ego_speed: float) -> None:
+        """Start at the trigger, then advance scripted actors and flows."""
+        if not self.started:
+            if ego_s >= self.trigger_s:
+                self.started, self.t0 = True, time
+                self._start(ego_s, ego_speed)
+            return
+        for a in list(self.scripted):
+            if not a.place():
+                self.scripted.remove(a)
+                if not a.person:
+                    libsumo.vehicle.setSpeedMode(a.id, 31)
+                    libsumo.vehicle.setSpeed(a.id, -1)
+        if self.h.type in ("SignalizedJunction", "StopSignJunction", "UnprotectedLeftTurn"):
+            if time - self.t0 <= FLOW_TIME and time >= self.flow_next:
+                self._spawn_flow()
+                self.flow_next = time + 60.0 / float(self.h.params["flow"])
+        if self.leader is not None:
+            self._leader(time)
+
+    # --- per type ----------------------------------------------------------------------
+    def _start(self, ego_s: float, ego_speed: float) -> None:
+        t, p = self.h.type, self.h.params
+        if t == "PedestrianCrossing":
+            lane = self.net.getLane(p["crossing"] + "_0")
+            a, b = (np.asarray(q[:2], dtype=float) for q in (lane.getShape()[0], lane.getShape()[-1]))
+            x, y, yaw = self.plan.path.pose(self.site_s)
+            right = (math.sin(yaw), -math.cos(yaw))
+            a_right = np.dot(a - (x, y), right) > np.dot(b - (x, y), right)
+            start, end = (a, b) if a_right == (p["direction"] == "right") else (b, a)
+            u = (end - start) / max(np.hypot(*(end - start)), 1e-6)
+            for k in range(int(p["walkers"])):
+                pid = f"{PERSON_PREFIX}_{self.tag}_{k}"
+                side = np.array([-u[1], u[0]]) * (k - (int(p["walkers"]) - 1) / 2) * 0.8
+                p0 = start - u * (CURB_MARGIN + 0.7 * k) + side
+                p1 = end + u * CURB_MARGIN + side
+                _add_person(pid, self.plan.path.legs[0].edge, *p0)
+                self.scripted.append(Scripted(pid, p0, p1, float(p["speed"]), person=True))
+        elif t == "DynamicObjectCrossing":
+            x, y, yaw = self.plan.path.pose(self.site_s)
+            right, left = _road_sides(self.plan, self.net, self.site_s)
+            r = np.array([math.sin(yaw), -math.cos(yaw)])
+            sign = 1.0 if p["direction"] == "right" else -1.0
+            p0 = np.array([x, y]) + sign * r * ((right if sign > 0 else left) + CURB_MARGIN)
+            p1 = np.array([x, y]) - sign * r * ((left if sign > 0 else right) + CURB_MARGIN)
+            pid = f"{PERSON_PREFIX}_{self.tag}"
+            _add_person(pid, self.plan.path.legs[0].edge, *p0)
+            self.scripted.append(Scripted(pid, p0, p1, float(p["speed"]), person=True))
+        elif t == "HardBreakRoute":
+            loc = _lane_pos(self.plan, self.net, ego_s + float(p["gap"]))
+            if loc is None:
+                return
+            edge, lane, pos = loc
+            legs = [g.edge for g in self.plan.path.legs]
+            vid = f"{self.tag}_leader"
+            libsumo.route.add(f"r_{vid}", legs[legs.index(edge):])
+            libsumo.vehicle.add(vid, f"r_{vid}", typeID="hazard", departLane=str(lane),
+                                departPos=f"{pos:.2f}", departSpeed=f"{max(ego_speed, 3.0):.2f}")
+            libsumo.vehicle.setLaneChangeMode(vid, 0)
+            self.leader = vid
+        elif t == "ParkingCutIn":
+            loc = _lane_pos(self.plan, self.net, self.site_s)
+            if loc is None:
+                return
+            edge, lane, _ = loc
+            x0, y0, yaw0 = self.plan.path.pose(self.site_s - 4.0)
+            x1, y1, _ = self.plan.path.pose(self.site_s + 10.0)
+            r = np.array([math.sin(yaw0), -math.cos(yaw0)])
+            right, left = _road_sides(self.plan, self.net, self.site_s)
+            off = (right - 0.8) if p["source"] == "parking" else -3.3
+            p0 = np.array([x0, y0]) + r * off
+            legs = [g.edge for g in self.plan.path.legs]
+            vid = f"{self.tag}_cutin"
+            libsumo.route.add(f"r_{vid}", legs[legs.index(edge):])
+            libsumo.vehicle.add(vid, f"r_{vid}", typeID="hazard", departLane=str(lane), departPos="0",
+                                departSpeed="0")
+            libsumo.vehicle.setSpeedMode(vid, 0)
+            libsumo.vehicle.setLaneChangeMode(vid, 0)
+            self.scripted.append(Scripted(vid, p0, np.array([x1, y1]), 4.0, person=False))
+        elif t == "SignalizedJunction":
+            self._switch_to_red()
+
+    def _switch_to_red(self) -> None:
+        pas = next((q for q in self.plan.passages if q.junction == self.h.params["junction"] and q.tls), None)
+        if pas is None:
+            return
+        logic = libsumo.trafficlight.getAllProgramLogics(pas.tls)[0]
+        states = [ph.state for ph in logic.phases]
+        for k, st in enumerate(states):
+            if st[pas.link] in "rR" and states[k - 1][pas.link] in "yY":
+                libsumo.trafficlight.setPhase(pas.tls, k)
+                return
+
+    def _approaches(self) -> list[str]:
+        """Incoming edges whose traffic crosses (or, for a left turn, meets) the ego's path."""
+        pas = next((q for q in self.plan.passages if q.junction == self.h.params["junction"]), None)
+        if pas is None:
+            return []
+        node = self.net.getNode(pas.junction)
+        mine = self.net.getEdge(pas.from_edge)
+
+        def heading(e):
+            sh = e.getShape()
+            return math.atan2(sh[-1][1] - sh[-2][1], sh[-1][0] - sh[-2][0])
+
+        h0 = heading(mine)
+        out = []
+        for e in sorted(node.getIncoming(), key=lambda e: e.getID()):
+            if e.getID() == pas.from_edge or e.getFunction():
+                continue
+            d = abs((heading(e) - h0 + math.pi) % (2 * math.pi) - math.pi)
+            oncoming = d > math.radians(135)
+            if (self.h.type == "UnprotectedLeftTurn") == oncoming:
+                out.append(e.getID())
+        return out
+
+    def _spawn_flow(self) -> None:
+        for edge_id in self._approaches():
+            e = self.net.getEdge(edge_id)
+            straight = [c.getTo().getID() for c in e.getOutgoing() for c in e.getConnections(c)
+                        if c.getDirection() == "s" and c.getFromLane().allows("passenger")]
+            outs = straight or [o.getID() for o in e.getOutgoing() if not o.getFunction()]
+            if not outs:
+                continue
+            self.spawned += 1
+            vid = f"{self.tag}_flow{self.spawned}"
+            libsumo.route.add(f"r_{vid}", [edge_id, outs[0]])
+            pos = max(0.0, e.getLength() - 45.0 - float(self.rng.uniform(0, 15)))
+            libsumo.vehicle.add(vid, f"r_{vid}", typeID="hazard", departLane="best",
+                                departPos=f"{pos:.2f}", departSpeed="max")
+
+    def _leader(self, time: float) -> None:
+        vid = self.leader
+        if vid not in libsumo.vehicle.getIDList():
+            return
+        if self.brake_state == "drive":
+            x, y = libsumo.vehicle.getPosition(vid)
+            s, d = self.plan.path.project(x, y, self.trigger_s)
+            if d < 5.0 and s >= self.site_s:
+                v = libsumo.vehicle.getSpeed(vid)
+                decel = float(self.h.params["decel"])
+                libsumo.vehicle.setDecel(vid, decel)  # setSpeed(0) brakes at the type's decel
+                libsumo.vehicle.setSpeed(vid, 0.0)
+                self.brake_state, self.t_brake = "brake", time + v / decel
+        elif self.brake_state == "brake" and time >= self.t_brake + HOLD_TIME:
+            libsumo.vehicle.setSpeed(vid, -1)
+            self.brake_state = "done"

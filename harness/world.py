@@ -1,0 +1,151 @@
+"""The SUMO side of an episode: one libsumo simulation, the ego mirrored into it, and a
+snapshot of every actor near the ego after each step.
+
+libsumo holds one simulation per process (notes sumo-facts.md §3.3), so a World is
+started and closed once per route inside a worker process.
+
+The ego is a real SUMO vehicle (traffic sees and yields to it) placed every step with
+``moveToXY(keepRoute=2)`` at the pose the harness integrated, plus ``setSpeed``; speed
+mode 0 and lane-change mode 0, so SUMO never moves it by itself (SPEC §3).
+
+Conventions: SUMO reports a vehicle's *front bumper* position and a heading in degrees
+clockwise from north; the snapshot converts to centre position and yaw [rad, CCW from
++x], world frame.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import libsumo
+import numpy as np
+
+from controller.vehicle import DT, LENGTH, WIDTH, EgoState
+from sumo_nets import net_path
+
+EGO = "ego"
+CONTEXT_RADIUS = 50.0  # actors within this distance of the ego are read each step [m]
+PERSON_SIZE = 0.6  # box side of a pedestrian for drawing and contacts [m]
+PERSON_PREFIX = "ped"  # every person the harness adds has an id starting with this
+
+# actor classes, as the Leaderboard classifies the other party of a collision
+VEHICLE, PEDESTRIAN, STATIC = 0, 1, 2
+
+_POS, _ANGLE, _SPEED = libsumo.constants.VAR_POSITION, libsumo.constants.VAR_ANGLE, libsumo.constants.VAR_SPEED
+
+
+def yaw_from_sumo(angle_deg: float) -> float:
+    """SUMO heading (deg clockwise from north) -> yaw (rad CCW from +x)."""
+    return math.radians(90.0 - angle_deg)
+
+
+def sumo_angle(yaw: float) -> float:
+    """Yaw (rad CCW from +x) -> SUMO heading (deg clockwise from north), in [0, 360)."""
+    return (90.0 - math.degrees(yaw)) % 360.0
+
+
+@dataclass
+class Snapshot:
+    """Actors near the ego after a step, world frame: centre x, y [m], yaw [rad],
+    speed [m/s], length, width [m], class (VEHICLE / PEDESTRIAN / STATIC), id."""
+
+    ids: list[str]
+    xy: np.ndarray  # (K, 2)
+    yaw: np.ndarray  # (K,)
+    speed: np.ndarray  # (K,)
+    size: np.ndarray  # (K, 2) length, width
+    cls: np.ndarray  # (K,) int
+    background_speed: float  # mean speed of background vehicles near the ego, nan if none
+
+
+class World:
+    """A running libsumo simulation of one town, with the ego in it."""
+
+    def __init__(self, town: str, seed: int):
+        libsumo.start(["sumo", "-n", str(net_path(town)), "--step-length", str(DT),
+                       "--seed", str(seed), "--no-step-log", "true", "--no-warnings", "true",
+                       "--collision.action", "none", "--time-to-teleport", "120",
+                       "--pedestrian.model", "striping", "--begin", "0"])
+        self.time = 0.0
+        self._types: dict[str, tuple[float, float, int, bool]] = {}
+        vt = libsumo.vehicletype
+        vt.copy("DEFAULT_VEHTYPE", "ego")
+        vt.setLength("ego", LENGTH)
+        vt.setWidth("ego", WIDTH)
+        vt.copy("DEFAULT_VEHTYPE", "background")
+        vt.setLength("background", 4.6)
+        vt.setWidth("background", 1.9)
+        # CARLA's background traffic drives at ~70 % of the limit (notes leaderboard2.md §3.5)
+        vt.setSpeedFactor("background", 0.7)
+        vt.setSpeedDeviation("background", 0.05)
+        vt.copy("background", "hazard")
+        vt.setSpeedFactor("hazard", 0.8)
+        vt.setSpeedDeviation("hazard", 0.0)
+        for name, (length, width) in {"obstacle_parked_car": (4.6, 1.9), "obstacle_accident": (5.0, 2.4),
+                                      "obstacle_construction": (4.0, 2.6)}.items():
+            vt.copy("DEFAULT_VEHTYPE", name)
+            vt.setLength(name, length)
+            vt.setWidth(name, width)
+
+    def close(self) -> None:
+        libsumo.close()
+
+    # --- the ego ------------------------------------------------------------------------
+    def add_ego(self, edges: tuple[str, ...], lane: int, pos: float) -> None:
+        libsumo.route.add("ego_route", list(edges))
+        libsumo.vehicle.add(EGO, "ego_route", typeID="ego", departLane=str(lane),
+                            departPos=f"{pos + LENGTH / 2:.2f}", departSpeed="0")
+        libsumo.vehicle.setSpeedMode(EGO, 0)
+        libsumo.vehicle.setLaneChangeMode(EGO, 0)
+        libsumo.vehicle.subscribeContext(EGO, libsumo.constants.CMD_GET_VEHICLE_VARIABLE, CONTEXT_RADIUS,
+                                         [_POS, _ANGLE, _SPEED])
+        libsumo.vehicle.subscribeContext(EGO, libsumo.constants.CMD_GET_PERSON_VARIABLE, CONTEXT_RADIUS,
+                                         [_POS, _ANGLE, _SPEED])
+
+    def move_ego(self, s: EgoState) -> None:
+        """Place the ego (centre pose s) for the next step; SUMO wants the front bumper."""
+        fx = s.x + math.cos(s.yaw) * LENGTH / 2
+        fy = s.y + math.sin(s.yaw) * LENGTH / 2
+        libsumo.vehicle.moveToXY(EGO, "", -1, fx, fy, sumo_angle(s.yaw), keepRoute=2)
+        libsumo.vehicle.setSpeed(EGO, s.v)
+
+    def step(self) -> None:
+        libsumo.simulationStep()
+        self.time += DT
+
+    # --- reading the world --------------------------------------------------------------
+    def _kind(self, vid: str, person: bool) -> tuple[float, float, int, bool]:
+        """(length, width, class, is_background) of an actor, cached per id."""
+        k = self._types.get(vid)
+        if k is None:
+            if person:
+                k = (PERSON_SIZE, PERSON_SIZE, PEDESTRIAN, False)
+            else:
+                t = libsumo.vehicle.getTypeID(vid)
+                cls = STATIC if t.startswith("obstacle") else VEHICLE
+                k = (libsumo.vehicle.getLength(vid), libsumo.vehicle.getWidth(vid), cls, t == "background")
+            self._types[vid] = k
+        return k
+
+    def snapshot(self) -> Snapshot:
+        """Actors within CONTEXT_RADIUS of the ego (the ego excluded)."""
+        ids, rows, bg = [], [], []
+        # one table for both context subscriptions (vehicles and persons), keyed by id
+        for vid, var in (libsumo.vehicle.getContextSubscriptionResults(EGO) or {}).items():
+            if vid == EGO:
+                continue
+            person = vid.startswith(PERSON_PREFIX)
+            length, width, cls, is_bg = self._kind(vid, person)
+            (fx, fy), ang, v = var[_POS], var[_ANGLE], var[_SPEED]
+            yaw = yaw_from_sumo(ang)
+            off = 0.0 if person else length / 2
+            ids.append(vid)
+            rows.append((fx - math.cos(yaw) * off, fy - math.sin(yaw) * off, yaw, v, length, width, cls))
+            if is_bg:
+                bg.append(v)
+        a = np.array(rows, dtype=float).reshape(-1, 7)
+        return Snapshot(ids, a[:, :2], a[:, 2], a[:, 3], a[:, 4:6], a[:, 6].astype(int),
+                        float(np.mean(bg)) if bg else math.nan)
+
+    def forget(self, vid: str) -> None:
+        self._types.pop(vid, None)

@@ -1,0 +1,185 @@
+"""The closed loop in real libsumo: no lane glue, SUMO traffic respects the ego, hazards
+in the BEV, failures recorded per route, resume, determinism (SPEC §3, §12)."""
+from __future__ import annotations
+
+import json
+import math
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import libsumo
+import numpy as np
+import pytest
+
+from controller.vehicle import LENGTH, EgoState
+from harness import bev as B
+from harness.cli import main
+from harness.episode import run_episode
+from harness.plan import build_plan
+from harness.world import World
+from scenarios import set_path
+from scenarios.routefile import read_routes
+from sumo_nets import load_net
+
+SMOKE = read_routes(set_path("town12_smoke"))[1]
+
+
+def _records(out: Path) -> list[dict]:
+    return [json.loads(line) for line in (out / "records.jsonl").read_text().splitlines()]
+
+
+def test_steering_right_leaves_the_drivable_area():
+    res = run_episode(SMOKE[3], "tests.agents:SteerRight", None, seed=1)
+    net = load_net("town12")
+    x, y = res.log.columns["x"], res.log.columns["y"]
+    outside = 0
+    for k in range(0, len(x), 10):
+        lanes = [(ln, d) for ln, d in net.getNeighboringLanes(x[k], y[k], 10.0) if ln.allows("passenger")]
+        if all(d > ln.getWidth() / 2 + 0.5 for ln, d in lanes):  # Leaderboard's outside-lane rule
+            outside += 1
+    assert outside > 0, "the ego never left the road: something glues it to the lanes"
+    assert res.status == "Failed - Agent deviated from the route"
+
+
+def test_sumo_vehicle_behind_a_standing_ego_stops_without_passing_through():
+    route = SMOKE[3]  # starts on a 2-lane downtown edge
+    plan = build_plan(route, load_net("town12"))
+    world = World("town12", 5)
+    try:
+        lane = load_net("town12").getLane(plan.path.legs[0].lane_in)
+        world.add_ego(route.edges, lane.getIndex(), route.depart_pos)
+        x, y, yaw = plan.path.pose(0.0)
+        ego = EgoState(x, y, yaw, 0.0)
+        libsumo.route.add("follow", [route.edges[0]])
+        libsumo.vehicle.add("follower", "follow", typeID="background", departLane=str(lane.getIndex()),
+                            departPos="0", departSpeed="max")
+        libsumo.vehicle.setLaneChangeMode("follower", 0)  # no overtaking: it must stop
+        gaps = []
+        for _ in range(int(30 / 0.05)):
+            world.move_ego(ego)
+            world.step()
+            if "follower" in libsumo.vehicle.getIDList():
+                fx, fy = libsumo.vehicle.getPosition("follower")  # its front bumper
+                along = (fx - x) * math.cos(yaw) + (fy - y) * math.sin(yaw)
+                gaps.append(-LENGTH / 2 - along)  # ego rear minus follower front [m]
+        assert len(gaps) > 100
+        assert min(gaps) > 0.0, "the follower drove into the standing ego"
+        assert libsumo.vehicle.getSpeed("follower") < 0.1
+    finally:
+        world.close()
+
+
+def test_pedestrian_crossing_in_front_is_seen_in_the_bev():
+    route = SMOKE[2]
+    assert route.hazards[0].type == "PedestrianCrossing"
+    renderer = B.BevRenderer.for_town("town12")
+    seen = []
+
+    def on_frame(tick, ego, snap, plan, pred, lights, props):
+        ahead = [k for k, i in enumerate(snap.ids) if i.startswith("ped_hz")]
+        if not ahead:
+            return
+        bev = renderer.render(ego, snap, plan, lights, props)
+        # walker pixels in a corridor ahead of the ego (+-6 m wide, 2..30 m ahead)
+        corridor = bev[B.WALKERS, B.EGO_ROW - 40:B.EGO_ROW - 3, 24:41]
+        seen.append(int((corridor > 0).sum()))
+
+    res = run_episode(route, "route_follower", None, seed=2, on_frame=on_frame)
+    assert res.status == "Completed"
+    assert max(seen) > 0, "the crossing walker never showed in the BEV ahead of the ego"
+
+
+def test_bev_places_an_actor_where_it_is(tmp_path):
+    from harness.world import Snapshot
+    route = SMOKE[0]
+    plan = build_plan(route, load_net("town12"))
+    x, y, yaw = plan.path.pose(0.0)
+    ego = EgoState(x, y, yaw, 0.0)
+    # a 4 m x 2 m vehicle 15 m straight ahead of the ego
+    ax, ay = x + 15 * math.cos(yaw), y + 15 * math.sin(yaw)
+    snap = Snapshot(["v"], np.array([[ax, ay]]), np.array([yaw]), np.zeros(1), np.array([[4.0, 2.0]]),
+                    np.array([0]), math.nan)
+    img = B.BevRenderer.for_town("town12").render(ego, snap, plan, [], [])
+    rows, cols = np.nonzero(img[B.VEHICLES] > 128)
+    # expected centre: row 48 - 15 / 0.75 = 28, column 32 (64 / 2); box 4 m = 5.3 px tall;
+    # cv2.fillPoly also fills the pixels its edges pass through: up to 1 px more per side
+    assert rows.mean() == pytest.approx(B.EGO_ROW - 15 / B.RES, abs=0.75)
+    assert cols.mean() == pytest.approx(B.SIZE / 2, abs=0.75)
+    assert 4.0 / B.RES - 1 <= rows.max() - rows.min() + 1 <= 4.0 / B.RES + 2
+    assert img[B.ROAD, B.EGO_ROW, B.SIZE // 2] == 255  # the ego stands on the road
+    assert img[B.ROUTE, B.EGO_ROW - 5, B.SIZE // 2] > 0  # ... on its route
+
+
+def test_smoke_run_on_two_workers_and_determinism(tmp_path, capsys):
+    """The CI smoke run (town12_smoke on 2 workers), and the same run on 1 worker gives the
+    same records and logs (wall time aside)."""
+    two, one = tmp_path / "two", tmp_path / "one"
+    assert main(["eval", "--routes", "town12_smoke", "--workers", "2", "--out", str(two)]) == 0
+    assert main(["eval", "--routes", "town12_smoke", "--workers", "1", "--out", str(one)]) == 0
+    recs = {r["key"]: r for r in _records(two)}
+    assert sorted(recs) == ["0_rep0", "1_rep0", "2_rep0", "3_rep0"]
+    assert all(r["status"] == "Completed" and r["rc"] == 100.0 for r in recs.values())
+    assert (two / "records.csv").read_text().count("\n") == 5
+    other = {r["key"]: r for r in _records(one)}
+    for key, r in recs.items():
+        a, b = dict(r), dict(other[key])
+        a.pop("wall_time"), b.pop("wall_time")
+        assert a == b
+        la, lb = np.load(two / "logs" / f"{key}.npz"), np.load(one / "logs" / f"{key}.npz")
+        assert sorted(la.files) == sorted(lb.files)
+        for f in la.files:
+            np.testing.assert_array_equal(la[f], lb[f], err_msg=f"{key}:{f}")
+
+
+def test_agent_crash_and_nan_fail_their_route_and_the_run_goes_on(tmp_path, capsys):
+    out = tmp_path / "run"
+    assert main(["eval", "--routes", "town12_smoke", "--agent", "tests.agents:FaultyFollower",
+                 "--workers", "2", "--out", str(out)]) == 0
+    recs = {r["route_id"]: r for r in _records(out)}
+    assert recs["0"]["status"] == "Completed" and recs["3"]["status"] == "Completed"
+    assert recs["1"]["status"] == "Failed - Agent crashed" and "on purpose" in recs["1"]["message"]
+    assert recs["2"]["status"] == "Failed - Agent crashed" and "non-finite" in recs["2"]["message"]
+
+
+def test_killed_worker_is_recorded_and_the_run_completes(tmp_path, capsys, monkeypatch):
+    monkeypatch.setenv("FAULTY_KILL", "1")  # inherited by the spawned workers
+    out = tmp_path / "run"
+    assert main(["eval", "--routes", "town12_smoke", "--agent", "tests.agents:FaultyFollower",
+                 "--workers", "2", "--out", str(out)]) == 0
+    recs = _records(out)
+    assert sorted(r["route_id"] for r in recs) == ["0", "1", "2", "3"]
+    dead = [r for r in recs if r["route_id"] == "3"][0]
+    assert dead["status"] == "Failed - Simulation crashed" and "exit code -9" in dead["message"]
+    assert [r for r in recs if r["route_id"] == "0"][0]["status"] == "Completed"
+
+
+def test_resume_after_a_killed_run_neither_repeats_nor_loses_a_route(tmp_path, capsys):
+    out = tmp_path / "run"
+    cmd = [sys.executable, "-m", "harness.cli", "eval", "--routes", "town12_smoke", "--workers", "1",
+           "--out", str(out)]
+    proc = subprocess.Popen(cmd, start_new_session=True, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+                            env={**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[1])})
+    rec = out / "records.jsonl"
+    deadline = time.time() + 120
+    while time.time() < deadline and not (rec.exists() and rec.read_text().count("\n") >= 1):
+        time.sleep(0.05)
+    os.killpg(proc.pid, signal.SIGKILL)  # the parent and its worker, mid-run
+    proc.wait()
+    first = _records(out)
+    assert 1 <= len(first) < 4
+    assert main(["eval", "--routes", "town12_smoke", "--workers", "2", "--out", str(out), "--resume"]) == 0
+    final = _records(out)
+    assert sorted(r["key"] for r in final) == ["0_rep0", "1_rep0", "2_rep0", "3_rep0"]
+    assert final[:len(first)] == first  # the routes run before the kill were kept, not redone
+
+
+def test_existing_run_needs_resume(tmp_path, capsys):
+    out = tmp_path / "run"
+    out.mkdir()
+    (out / "records.jsonl").write_text('{"key": "0_rep0"}\n')
+    code = main(["eval", "--routes", "town12_smoke", "--out", str(out)])
+    assert code == 2 and "--resume" in capsys.readouterr().err

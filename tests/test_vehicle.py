@@ -1,0 +1,79 @@
+"""The ego vehicle model, PID controllers and contact test: hand-checked values."""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from controller.pid import LateralPID, PID, SpeedPID
+from controller.vehicle import DT, LR, EgoState, EgoVehicle, Control, bicycle_step, next_speed
+from harness.contacts import overlaps
+
+
+def test_speed_model_matches_the_fitted_polynomials():
+    # notes controllers.md §6.6 (computed there): full throttle at 10 km/h -> +1.22 km/h per
+    # tick; braking at 30 km/h -> -1.68 km/h per tick
+    assert (next_speed(10 / 3.6, 1.0, False) * 3.6 - 10) == pytest.approx(1.22, abs=0.005)
+    assert (30 - next_speed(30 / 3.6, 0.0, True) * 3.6) == pytest.approx(1.68, abs=0.005)
+    assert next_speed(5.0, 0.2, False) == 5.0  # below the 0.3 dead band the speed is kept
+    assert next_speed(0.0, 0.0, True) == 0.0  # no reversing
+
+
+def test_bicycle_goes_straight_without_steer_and_turns_right_with_positive_steer():
+    s = bicycle_step(EgoState(0.0, 0.0, 0.0, 10.0), 0.0, 10.0)
+    assert (s.x, s.y, s.yaw) == pytest.approx((10.0 * DT, 0.0, 0.0))
+    r = bicycle_step(EgoState(0.0, 0.0, 0.0, 10.0), 0.5, 10.0)
+    delta = -0.36848336 * 0.5
+    beta = math.atan(LR / (LR - 0.090769015) * math.tan(delta))
+    assert r.yaw == pytest.approx(10.0 / LR * math.sin(beta) * DT)
+    assert r.yaw < 0 and r.y < 0  # clockwise, to the right
+
+
+def test_actuation_noise_is_seeded():
+    a = EgoVehicle(EgoState(0, 0, 0, 5.0), np.random.default_rng(3))
+    b = EgoVehicle(EgoState(0, 0, 0, 5.0), np.random.default_rng(3))
+    for _ in range(50):
+        sa, sb = a.step(Control(0.1, 0.5, 0.0)), b.step(Control(0.1, 0.5, 0.0))
+    assert sa == sb
+
+
+def test_pid_window_is_prefilled_with_zeros():
+    pid = PID(1.0, 1.0, 1.0, n=4)
+    # e = 2: P 2 + I mean(0, 0, 0, 2) = 0.5 + D (2 - 0) = 2 -> 4.5
+    assert pid.step(2.0) == pytest.approx(4.5)
+
+
+def test_lateral_pid_zero_on_a_straight_path_and_signs():
+    straight = np.stack([np.arange(1, 20, dtype=float), np.zeros(19)], 1)
+    assert LateralPID().step(straight, 5.0) == 0.0
+    right = np.stack([np.arange(1, 20, dtype=float), -0.2 * np.arange(1, 20)], 1)
+    left = right * [1, -1]
+    assert LateralPID().step(right, 5.0) > 0 > LateralPID().step(left, 5.0)
+    # first step: error e = atan2(0.2, 1) in deg / 90 (lookahead 2.4 m lands on a point of the
+    # line, whose angle is the line's); no derivative, I = mean([e]) = e
+    e = math.degrees(math.atan(0.2)) / 90
+    assert LateralPID().step(right, 5.0) == pytest.approx(min(1.0, (3.118357247806046 + 0.6406067986034124) * e))
+
+
+def test_speed_pid_brake_rule():
+    assert SpeedPID().step(0.3, 0.0) == (0.0, 1.0)  # desired < 0.4 m/s
+    assert SpeedPID().step(5.0, 5.6) == (0.0, 1.0)  # 12 % too fast
+    throttle, brake = SpeedPID().step(5.0, 5.4)  # 8 % too fast: no brake, no throttle need
+    assert brake == 0.0 and throttle == 0.0
+    throttle, brake = SpeedPID().step(6.0, 4.0)  # error clipped to 1 m/s: 1.75 + 1/20 + 2 -> 1
+    assert (throttle, brake) == (1.0, 0.0)
+
+
+def test_oriented_box_contacts():
+    ego = (0.0, 0.0, 0.0, 4.9, 2.1)
+    xy = np.array([[5.0, 0.0], [4.8, 0.0], [0.0, 2.1], [0.0, 2.0], [0.0, 0.0]])
+    size = np.array([[5.0, 2.0]] * 5)
+    yaw = np.zeros(5)
+    # half lengths 2.45 + 2.5 = 4.95 < 5.0; half widths 1.05 + 1.0 = 2.05 < 2.1
+    assert overlaps(ego, xy, yaw, size).tolist() == [False, True, False, True, True]
+    # a 2x2 box rotated 45 deg with its centre 2.45 + sqrt(2) + 0.01 ahead just misses
+    assert not overlaps(ego, np.array([[2.45 + math.sqrt(2) + 0.01, 0.0]]), np.array([math.pi / 4]),
+                        np.array([[2.0, 2.0]]))[0]
+    assert overlaps(ego, np.array([[2.45 + math.sqrt(2) - 0.01, 0.0]]), np.array([math.pi / 4]),
+                    np.array([[2.0, 2.0]]))[0]

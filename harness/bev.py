@@ -117,10 +117,10 @@ class BevRenderer:
             out[ch] = crop[:, :, i]
         to_px = _ego_pixels(ego)
         d = np.hypot(plan.xy[:, 0] - ego.x, plan.xy[:, 1] - ego.y)
-        near = plan.xy[d < 60.0]
+        near = plan.xy[d < 45.0]  # the raster's corners are 43 m from the ego
         if len(near) >= 2:
             cv2.polylines(out[ROUTE], [to_px(near)], False, 255, max(1, int(round(2.0 / RES))),
-                          cv2.LINE_AA, shift=4)
+                          cv2.LINE_8, shift=4)
         for level in (YELLOW, RED):
             lines = [self._light_line(p) for p, st in zip((q for q in plan.passages if q.tls), lights)
                      if _TLS_LEVEL.get(st) == level]

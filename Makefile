@@ -17,7 +17,7 @@ $(VENV)/.installed: pyproject.toml Makefile
 	touch $@
 
 run: setup
-	$(BIN)/sumo-scimm eval --routes town12_short
+	$(BIN)/sumo-scimm eval --routes town12_short --resume
 
 test: setup
 	$(BIN)/python -m pytest -q

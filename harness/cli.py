@@ -130,15 +130,18 @@ def _eval(args: argparse.Namespace) -> int:
     out = Path(args.out) if args.out else Path("runs") / f"{path.stem}_{args.agent.replace(':', '.')}"
     if not args.resume and (out / "records.jsonl").exists() and (out / "records.jsonl").stat().st_size:
         raise BadInput(f"{out} already holds a run: add --resume to finish it, or choose another --out")
-    jobs = [Job(k, r, rep, args.agent, args.agent_config, route_seed(args.seed, k), str(out / "logs"))
+    jobs = [Job(k, r, rep, args.agent, args.agent_config, route_seed(args.seed, k), str(out / "logs"), args.rules)
             for k, (rep, r) in enumerate((rep, r) for rep in range(args.repetitions) for r in routes)]
-    records = run_eval(jobs, out, args.workers, args.resume)
+    checkpoint = Path(args.checkpoint) if args.checkpoint else out / "results.json"
+    sensors = [s["type"] for s in load_agent(args.agent).sensors()]
+    records = run_eval(jobs, out, args.workers, args.resume, checkpoint=checkpoint, sensors=sensors)
+    g = json.loads(checkpoint.read_text())["_checkpoint"]["global_record"]
     statuses: dict[str, int] = {}
     for r in records:
         statuses[r["status"]] = statuses.get(r["status"], 0) + 1
-    mean_rc = sum(r["rc"] for r in records) / max(len(records), 1)
-    print(f"{len(records)} routes -> {out}: mean RC {mean_rc:.2f}; "
-          + ", ".join(f"{k} {v}" for k, v in sorted(statuses.items())))
+    m = g["scores_mean"]
+    print(f"{len(records)} routes -> {out}: DS {m['score_composed']:.2f}, RC {m['score_route']:.2f}, "
+          f"IS {m['score_penalty']:.3f}; " + ", ".join(f"{k} {v}" for k, v in sorted(statuses.items())))
     return 0
 
 
@@ -173,6 +176,39 @@ def _bench(args: argparse.Namespace) -> int:
     print(format_bench(r))
     if args.json:
         Path(args.json).write_text(bench_json(r) + "\n")
+    return 0
+
+
+def _score(args: argparse.Namespace) -> int:
+    from harness.scoring import ScoreError, rescore_results
+    path = Path(args.results)
+    if not path.is_file():
+        raise BadInput(f"{path}: no such results file")
+    try:
+        data = json.loads(path.read_text())
+        out = rescore_results(data, args.rules)
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise BadInput(f"{path}: not JSON ({exc})") from None
+    except (ScoreError, KeyError, TypeError, ValueError, IndexError, AttributeError) as exc:
+        raise BadInput(f"{path}: not a Leaderboard results file ({exc})") from None
+    text = json.dumps(out, indent=2) + "\n"
+    if args.out:
+        tmp = Path(args.out + ".tmp")
+        tmp.write_text(text)
+        tmp.replace(args.out)
+        g = out["_checkpoint"]["global_record"]["scores_mean"]
+        print(f"{args.out}: DS {g['score_composed']}, RC {g['score_route']}, IS {g['score_penalty']}")
+    else:
+        sys.stdout.write(text)
+    return 0
+
+
+def _report(args: argparse.Namespace) -> int:
+    from harness.report import ReportError, write_report
+    try:
+        print(write_report([Path(d) for d in args.runs], Path(args.out)))
+    except ReportError as exc:
+        raise BadInput(str(exc)) from None
     return 0
 
 
@@ -217,6 +253,9 @@ def build_parser() -> argparse.ArgumentParser:
     e.add_argument("--out", help="run folder (default runs/<set>_<agent>)")
     e.add_argument("--resume", action="store_true", help="finish an interrupted run in --out")
     e.add_argument("--seed", type=int, default=0, help="run seed; each route derives its own (default 0)")
+    e.add_argument("--checkpoint", help="Leaderboard results JSON (default <out>/results.json)")
+    e.add_argument("--rules", default="lb2.0", choices=("lb2.0", "lb2.1", "b2d"),
+                   help="scoring rules (default lb2.0)")
     e.set_defaults(func=_eval)
 
     r = sub.add_parser("render", help="video of the BEV while an agent drives one route, and a path PNG")
@@ -227,6 +266,17 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--out", required=True, help="video file (.mp4); the path PNG goes beside it")
     r.add_argument("--seed", type=int, default=0, help="run seed, as in eval (default 0)")
     r.set_defaults(func=_render)
+
+    sc = sub.add_parser("score", help="recompute the scores of a Leaderboard results JSON (ours or CARLA's)")
+    sc.add_argument("results", help="results JSON (the leaderboard's --checkpoint file)")
+    sc.add_argument("--rules", default="lb2.0", choices=("lb2.0", "lb2.1", "b2d"), help="default lb2.0")
+    sc.add_argument("--out", help="write the rescored JSON here (default: print it)")
+    sc.set_defaults(func=_score)
+
+    rp = sub.add_parser("report", help="the paper's Tables 3 and 4 for several run folders")
+    rp.add_argument("runs", nargs="+", help="run folders of 'sumo-scimm eval'; the first is the baseline")
+    rp.add_argument("--out", default="report", help="folder for table3/table4 .csv and .md (default report)")
+    rp.set_defaults(func=_report)
 
     bn = sub.add_parser("bench", help="performance figures beside their references (SPEC §11)")
     bn.add_argument("--routes", default="town12_smoke", help="route set to time (default town12_smoke)")

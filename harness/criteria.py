@@ -19,6 +19,12 @@ FAILED_AGENT = "Failed - Agent crashed"
 FAILED_SIMULATION = "Failed - Simulation crashed"
 FAILED_SETUP = "Failed - Agent couldn't be set up"
 
+# Scenario timeouts (notes leaderboard2.md §3.7): hazards that can block the ego get 240 s
+# from their trigger to their own end (the ego this far past the site)
+SCENARIO_TIMEOUT = 240.0  # [s]
+TIMEOUT_HAZARDS = ("ParkedObstacle", "SignalizedJunction", "UnprotectedLeftTurn")
+SCENARIO_END = 10.0  # [m]
+
 
 class RouteCompletion:
     """RC = 100 * cum_dist[i] / length (2 decimals); success when RC > 99 and the ego is
@@ -66,15 +72,16 @@ class InRoute:
 
 
 class Blocked:
-    """Speed < 0.1 m/s for more than 180 s (Leaderboard 2.0) ends the route."""
+    """Speed < 0.1 m/s for more than 180 s (Leaderboard 2.0) ends the route. The check is
+    off while a scenario timeout runs (``paused``), and its timer restarts after."""
 
     SPEED, MAX_TIME = 0.1, 180.0
 
     def __init__(self, max_time: float = MAX_TIME):
         self.max_time, self.since = max_time, 0.0
 
-    def update(self, speed: float, time: float) -> str | None:
-        if speed >= self.SPEED:
+    def update(self, speed: float, time: float, paused: bool = False) -> str | None:
+        if speed >= self.SPEED or paused:
             self.since = time
         elif time - self.since > self.max_time:
             return FAILED_BLOCKED

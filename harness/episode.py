@@ -63,6 +63,7 @@ class EpisodeResult:
     message: str
     log: EpisodeLog
     length: float  # route length along the lanes [m]
+    plan: GlobalPlan | None = None
     loop_time: float = 0.0  # wall time of the tick loop alone [s] (no start-up, no teardown)
 
 
@@ -156,7 +157,9 @@ def run_episode(route: Route, agent_name: str, agent_config: str | None, seed: i
             snap = world.snapshot()
             tick += 1
             end = (done.update(s.x, s.y) or in_route.update(s.x, s.y)
-                   or blocked.update(s.v, world.time) or timeout.update(s.x, s.y, world.time))
+                   or blocked.update(s.v, world.time, paused=any(h.timeout_active(ego_s, world.time)
+                                                                 for h in hazards))
+                   or timeout.update(s.x, s.y, world.time))
             _log_tick(log, tick, world.time, s, control, pred, done, snap, lights_now, props)
             if on_frame is not None:
                 on_frame(tick, s, snap, plan, pred, lights_now, props)
@@ -178,7 +181,7 @@ def run_episode(route: Route, agent_name: str, agent_config: str | None, seed: i
                 pass
         world.close()
     return EpisodeResult(status, float(rc), round(tick * DT, 3), wallclock.perf_counter() - wall0,
-                         tick, message, log, plan.length, loop_time)
+                         tick, message, log, plan.length, plan, loop_time)
 
 
 class _AgentSetupError(Exception):

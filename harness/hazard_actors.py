@@ -26,6 +26,7 @@ import numpy as np
 import sumolib
 
 from controller.vehicle import DT
+from harness import criteria
 from harness.plan import GlobalPlan
 from harness.world import PERSON_PREFIX, sumo_angle
 from scenarios.routefile import Hazard
@@ -119,6 +120,12 @@ class HazardActor:
         self.leader: str | None = None
         self.brake_state = "drive"
         self.released: list[Scripted] = []
+
+    def timeout_active(self, ego_s: float, time: float) -> bool:
+        """Whether this hazard's 240 s scenario timeout is running (Leaderboard: the
+        blocked check is off meanwhile): started, not passed, not yet timed out."""
+        return (self.started and self.h.type in criteria.TIMEOUT_HAZARDS
+                and ego_s < self.site_s + criteria.SCENARIO_END and time - self.t0 <= criteria.SCENARIO_TIMEOUT)
 
     @property
     def tag(self) -> str:

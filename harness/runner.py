@@ -14,7 +14,6 @@ worker takes over and the run goes on. ``resume`` keeps the complete records alr
 """
 from __future__ import annotations
 
-import csv
 import json
 import multiprocessing as mp
 import os
@@ -26,10 +25,19 @@ import numpy as np
 from tqdm import tqdm
 
 from harness import criteria
+from harness.infractions import KEYS
+from harness.scoring import outside_lanes, route_record
 from scenarios.routefile import Route
 
-RECORD_FIELDS = ("key", "route_id", "repetition", "town", "status", "rc", "game_time", "wall_time",
-                 "steps", "length", "km_driven", "seed", "message")
+STABILITY = ("steering_jerk", "longitudinal_jerk", "curvature_variation", "speed_variation")
+
+COUNT_KEYS = tuple(k for k in KEYS if k != "outside_route_lanes")
+RECORD_FIELDS = ("key", "route_id", "repetition", "town", "status", "ds", "rc", "is", *COUNT_KEYS,
+                 "outside_lanes_pct", "collisions_per_km", "km_driven", "length", "game_time", "wall_time",
+                 "steps", *STABILITY, "seed", "message")
+# the caller's failure message, as the leaderboard passes it to the status text
+_CRASH = {criteria.FAILED_AGENT: "Agent crashed", criteria.FAILED_SIMULATION: "Simulation crashed",
+          criteria.FAILED_SETUP: "Agent couldn't be set up"}
 
 
 @dataclass(frozen=True)
@@ -41,6 +49,7 @@ class Job:
     agent_config: str | None
     seed: int
     log_dir: str
+    rules: str = "lb2.0"
 
     @property
     def key(self) -> str:
@@ -52,25 +61,50 @@ def route_seed(run_seed: int, index: int) -> int:
     return int(np.random.SeedSequence([run_seed, index]).generate_state(1)[0])
 
 
+def make_record(job: Job, status: str, rc: float, length: float, game_time: float, wall_time: float,
+                steps: int, message: str, infractions: dict, stab: dict, rules: str) -> dict:
+    """One line of records.jsonl: the Leaderboard record (``lb``) and flat columns."""
+    lb = route_record(job.index, f"RouteScenario_{job.route.id}_rep{job.repetition}", infractions, rc,
+                      {"route_length": length, "duration_game": game_time, "duration_system": wall_time},
+                      rules, _CRASH.get(status, ""))
+    sc = lb["scores"]
+    km = length / 1000 * sc["score_route"] / 100
+    n_coll = sum(len(lb["infractions"][k]) for k in ("collisions_layout", "collisions_pedestrian",
+                                                      "collisions_vehicle"))
+    out_pct = (outside_lanes(lb["infractions"]["outside_route_lanes"][0])[1]
+               if lb["infractions"]["outside_route_lanes"] else 0.0)
+    return {"key": job.key, "route_id": job.route.id, "repetition": job.repetition, "town": job.route.town,
+            "status": lb["status"], "ds": sc["score_composed"], "rc": sc["score_route"], "is": sc["score_penalty"],
+            **{k: len(lb["infractions"][k]) for k in COUNT_KEYS}, "outside_lanes_pct": out_pct,
+            "collisions_per_km": round(n_coll / km, 3) if km > 0 else float("nan"),
+            "km_driven": round(km, 6), "length": round(length, 3), "game_time": round(game_time, 3),
+            "wall_time": round(wall_time, 3), "steps": steps, **{k: stab.get(k, float("nan")) for k in STABILITY},
+            "seed": job.seed, "message": message, "episode_status": status, "lb": lb}
+
+
 def run_job(job: Job) -> dict:
-    """Drive one route and save its log; returns the route record (runs in a worker)."""
+    """Drive one route, save its log, detect infractions; returns the route record (in a worker)."""
     from harness.episode import run_episode
+    from harness.infractions import detect
+    from harness.stability import stability
+    from sumo_nets import load_net
     res = run_episode(job.route, job.agent, job.agent_config, job.seed)
+    arrays = res.log.arrays()
     log_path = Path(job.log_dir) / f"{job.key}.npz"
     tmp = log_path.with_name(log_path.name + ".tmp.npz")
-    np.savez_compressed(tmp, **res.log.arrays())
+    np.savez_compressed(tmp, **arrays)
     os.replace(tmp, log_path)
-    length = round(res.length, 3)
-    return {"key": job.key, "route_id": job.route.id, "repetition": job.repetition, "town": job.route.town,
-            "status": res.status, "rc": res.rc, "game_time": res.game_time,
-            "wall_time": round(res.wall_time, 3), "steps": res.steps, "length": length,
-            "km_driven": round(length / 1000 * res.rc / 100, 6), "seed": job.seed, "message": res.message}
+    if res.plan is not None:
+        infractions = detect(arrays, res.plan, job.route, load_net(job.route.town), res.status, job.rules)
+    else:
+        infractions = {k: [] for k in KEYS}
+    return make_record(job, res.status, res.rc, res.length, res.game_time, res.wall_time, res.steps,
+                       res.message, infractions, stability(arrays), job.rules)
 
 
 def _crash_record(job: Job, reason: str) -> dict:
-    return {"key": job.key, "route_id": job.route.id, "repetition": job.repetition, "town": job.route.town,
-            "status": criteria.FAILED_SIMULATION, "rc": 0.0, "game_time": 0.0, "wall_time": 0.0, "steps": 0,
-            "length": round(float(job.route.length), 3), "km_driven": 0.0, "seed": job.seed, "message": reason}
+    return make_record(job, criteria.FAILED_SIMULATION, 0.0, float(job.route.length), 0.0, 0.0, 0, reason,
+                       {k: [] for k in KEYS}, {}, job.rules)
 
 
 def _worker(conn) -> None:
@@ -95,19 +129,14 @@ def read_records(path: Path) -> list[dict]:
     return out
 
 
-def write_csv(records: list[dict], path: Path) -> None:
-    tmp = path.with_name(path.name + ".tmp")
-    with open(tmp, "w", newline="") as f:
-        w = csv.DictWriter(f, fieldnames=RECORD_FIELDS, extrasaction="ignore")
-        w.writeheader()
-        for r in sorted(records, key=lambda r: (int(r["route_id"]) if str(r["route_id"]).isdigit()
-                                                else 0, str(r["route_id"]), r["repetition"])):
-            w.writerow({k: (v.splitlines()[0] if isinstance(v, str) and v else v) for k, v in r.items()})
-    os.replace(tmp, path)
-
-
-def run_eval(jobs: list[Job], out: Path, workers: int, resume: bool, show_progress: bool = True) -> list[dict]:
-    """Run jobs on ``workers`` processes; returns all records (old ones too when resuming)."""
+def run_eval(jobs: list[Job], out: Path, workers: int, resume: bool, show_progress: bool = True,
+             checkpoint: Path | None = None, sensors: list[str] | None = None) -> list[dict]:
+    """Run jobs on ``workers`` processes; returns all records (old ones too when resuming).
+    After every route: records.jsonl (appended), records.csv and results.json (rewritten);
+    at the end also summary.csv."""
+    from harness.outputs import write_outputs
+    checkpoint = checkpoint or out / "results.json"
+    sensors = sensors or []
     out.mkdir(parents=True, exist_ok=True)
     Path(jobs[0].log_dir if jobs else out / "logs").mkdir(parents=True, exist_ok=True)
     rec_path = out / "records.jsonl"
@@ -138,7 +167,7 @@ def run_eval(jobs: list[Job], out: Path, workers: int, resume: bool, show_progre
             f.flush()
             os.fsync(f.fileno())
             records.append(rec)
-            write_csv(records, out / "records.csv")
+            write_outputs(records, len(jobs), out, checkpoint, sensors, finished=False, summary=False)
             bar.update(1)
 
         for _ in range(min(workers, len(todo))):
@@ -175,5 +204,5 @@ def run_eval(jobs: list[Job], out: Path, workers: int, resume: bool, show_progre
                     if pending:
                         start_worker()
     bar.close()
-    write_csv(records, out / "records.csv")
+    write_outputs(records, len(jobs), out, checkpoint, sensors, finished=len(records) == len(jobs))
     return records

@@ -39,3 +39,44 @@ class FaultyFollower(RouteFollower):
             if rid == "3" and os.environ.get("FAULTY_KILL"):
                 os.kill(os.getpid(), signal.SIGKILL)
         return control
+
+
+def _progress_s(agent) -> float:
+    """Route arc length [m] at the agent's own nearest route point."""
+    return float(agent.plan.s[agent.index])
+
+
+class LightStopper(RouteFollower):
+    """Follows the route and stands before the stop line while the route's light is red
+    or yellow (privileged: reads the light states)."""
+
+    def sensors(self):
+        return super().sensors() + [{"type": "world", "id": "world"}]
+
+    def run_step(self, input_data, timestamp):
+        control = super().run_step(input_data, timestamp)
+        _, lights, _ = input_data["world"]
+        s = _progress_s(self)
+        passages = [p for p in self.plan.passages if p.tls]
+        for p, state in zip(passages, lights):
+            if state in (0, 1, 2, 3) and 0.0 < p.s_in - s < 12.0:  # r, R, y, Y
+                return Control(steer=control.steer, brake=1.0)
+        return control
+
+
+class StopSignStopper(RouteFollower):
+    """Follows the route and stops for 1 s with its front near the line at stop signs."""
+
+    def setup(self, config):
+        super().setup(config)
+        self.waited: dict[str, float] = {}
+
+    def run_step(self, input_data, timestamp):
+        control = super().run_step(input_data, timestamp)
+        s, v = _progress_s(self), input_data["speed"]
+        for p in self.plan.passages:
+            if p.state in ("s", "w") and 0.0 < p.s_in - s < 5.0 and self.waited.get(p.junction, 0.0) < 1.0:
+                if v < 0.05:
+                    self.waited[p.junction] = self.waited.get(p.junction, 0.0) + 0.05
+                return Control(steer=control.steer, brake=1.0)
+        return control

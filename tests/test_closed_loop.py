@@ -20,6 +20,7 @@ from harness import bev as B
 from harness.cli import main
 from harness.episode import run_episode
 from harness.plan import build_plan
+from harness.scoring import rescore_results
 from harness.world import World
 from scenarios import set_path
 from scenarios.routefile import read_routes
@@ -122,17 +123,28 @@ def test_smoke_run_on_two_workers_and_determinism(tmp_path, capsys):
     assert main(["eval", "--routes", "town12_smoke", "--workers", "1", "--out", str(one)]) == 0
     recs = {r["key"]: r for r in _records(two)}
     assert sorted(recs) == ["0_rep0", "1_rep0", "2_rep0", "3_rep0"]
-    assert all(r["status"] == "Completed" and r["rc"] == 100.0 for r in recs.values())
+    assert all(r["episode_status"] == "Completed" and r["rc"] == 100.0 for r in recs.values())
     assert (two / "records.csv").read_text().count("\n") == 5
+    assert (two / "summary.csv").is_file()
+    written = json.loads((two / "results.json").read_text())
+    assert written["entry_status"] == "Finished" and written["_checkpoint"]["progress"] == [4, 4]
+    assert rescore_results(written) == written  # the global record equals what `score` recomputes
     other = {r["key"]: r for r in _records(one)}
     for key, r in recs.items():
         a, b = dict(r), dict(other[key])
-        a.pop("wall_time"), b.pop("wall_time")
+        for rec in (a, b):
+            rec.pop("wall_time")
+            rec["lb"] = {**rec["lb"], "meta": {**rec["lb"]["meta"], "duration_system": None}}
         assert a == b
         la, lb = np.load(two / "logs" / f"{key}.npz"), np.load(one / "logs" / f"{key}.npz")
         assert sorted(la.files) == sorted(lb.files)
         for f in la.files:
             np.testing.assert_array_equal(la[f], lb[f], err_msg=f"{key}:{f}")
+    capsys.readouterr()
+    assert main(["report", str(two), str(one), "--out", str(tmp_path / "report")]) == 0
+    printed = capsys.readouterr().out
+    assert "Table 3" in printed and "Table 4" in printed and "| two |" in printed and "| one |" in printed
+    assert (tmp_path / "report" / "table3.csv").is_file() and (tmp_path / "report" / "table4.md").is_file()
 
 
 def test_agent_crash_and_nan_fail_their_route_and_the_run_goes_on(tmp_path, capsys):
@@ -140,7 +152,7 @@ def test_agent_crash_and_nan_fail_their_route_and_the_run_goes_on(tmp_path, caps
     assert main(["eval", "--routes", "town12_smoke", "--agent", "tests.agents:FaultyFollower",
                  "--workers", "2", "--out", str(out)]) == 0
     recs = {r["route_id"]: r for r in _records(out)}
-    assert recs["0"]["status"] == "Completed" and recs["3"]["status"] == "Completed"
+    assert recs["0"]["episode_status"] == "Completed" and recs["3"]["episode_status"] == "Completed"
     assert recs["1"]["status"] == "Failed - Agent crashed" and "on purpose" in recs["1"]["message"]
     assert recs["2"]["status"] == "Failed - Agent crashed" and "non-finite" in recs["2"]["message"]
 
@@ -154,7 +166,7 @@ def test_killed_worker_is_recorded_and_the_run_completes(tmp_path, capsys, monke
     assert sorted(r["route_id"] for r in recs) == ["0", "1", "2", "3"]
     dead = [r for r in recs if r["route_id"] == "3"][0]
     assert dead["status"] == "Failed - Simulation crashed" and "exit code -9" in dead["message"]
-    assert [r for r in recs if r["route_id"] == "0"][0]["status"] == "Completed"
+    assert [r for r in recs if r["route_id"] == "0"][0]["episode_status"] == "Completed"
 
 
 def test_resume_after_a_killed_run_neither_repeats_nor_loses_a_route(tmp_path, capsys):

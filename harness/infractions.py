@@ -1,0 +1,243 @@
+"""Leaderboard 2.0 infraction detection from an episode log (notes leaderboard2.md §3-§4).
+
+Detection is a function of the per-tick log (ego pose and speed, contacts, the route's
+light states, background speed), the route's plan and the town's lanes, run once after
+the episode. It returns the Leaderboard's infraction lists: message strings in the
+Leaderboard's exact formats, keyed and ordered as in its results JSON. Scores are
+computed from these lists only (harness.scoring), as for a CARLA results file.
+
+SUMO stand-ins for CARLA geometry (decisions, see docs/scoring.md):
+- red light: the stop line is the end of every car lane of the edge entering the
+  junction, +-0.6 lane width; the light's state is the state of the route's link;
+- stop sign: the ego is "affected" from 6 m before to 1 m past the end of its lane at a
+  stop or all-way-stop link (4 m look-ahead plus the trigger box);
+- outside lanes: the nearest car lane (junction lanes included) farther than half its
+  width + 0.5 m; wrong lane: outside a junction, a nearest lane heading >= 120 deg off
+  the ego's heading (the Leaderboard tracks lane changes; same outcome for a car that
+  does not spin in place);
+- collisions: our oriented-box contacts, classified by the other actor (vehicle,
+  walker, static obstacle), then the 5 s same-actor, 5 m and 0.1 m/s rules.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from controller.vehicle import LENGTH
+from harness import criteria
+from harness.lanes import LaneIndex
+from harness.plan import GlobalPlan
+from harness.world import PEDESTRIAN, STATIC, VEHICLE
+from scenarios.routefile import Route
+
+KEYS = ("collisions_layout", "collisions_pedestrian", "collisions_vehicle", "red_light", "stop_infraction",
+        "outside_route_lanes", "min_speed_infractions", "yield_emergency_vehicle_infractions",
+        "scenario_timeouts", "route_dev", "vehicle_blocked", "route_timeout")
+
+COLLISION_TIME, COLLISION_RADIUS, EPSILON = 5.0, 5.0, 0.1  # [s], [m], [m/s]
+RED_LIGHT_DIST = 15.0  # lights farther than this from the ego are skipped [m]
+STOP_BEFORE, STOP_AFTER, STOP_SPEED = 6.0, 1.0, 0.1  # stop zone around the stop line [m], [m/s]
+OUTSIDE_MARGIN, WRONG_DEG = 0.5, 120.0  # [m], [deg]
+MIN_SPEED_CHECKPOINTS = {"lb2.0": 4, "lb2.1": 4, "b2d": 20}
+SCENARIO_TIMEOUT, TIMEOUT_HAZARDS, SCENARIO_END = criteria.SCENARIO_TIMEOUT, criteria.TIMEOUT_HAZARDS, criteria.SCENARIO_END
+_RED = (0, 1)  # TLS_CODES indices of 'r' and 'R'
+_CLASS_KEY = {VEHICLE: "collisions_vehicle", PEDESTRIAN: "collisions_pedestrian", STATIC: "collisions_layout"}
+_TYPE_ID = {VEHICLE: "vehicle.sumo.car", PEDESTRIAN: "walker.pedestrian.sumo", STATIC: "static.prop.obstacle"}
+
+
+def loc(x: float, y: float) -> str:
+    """CARLA's location text: '(x=1.234, y=5.678, z=0.0)', rounded to 3 decimals."""
+    return f"(x={round(float(x), 3)}, y={round(float(y), 3)}, z=0.0)"
+
+
+def hazard_spans(plan: GlobalPlan, route: Route) -> list[tuple[str, float, float, dict]]:
+    """(type, trigger s, site s, params) of each hazard, route arc lengths [m]."""
+    out = []
+    for h in route.hazards:
+        s, _ = plan.path.project(h.trigger[0], h.trigger[1])
+        out.append((h.type, s, s + float(h.params["distance"]), h.params))
+    return out
+
+
+def collisions(log: dict) -> dict[str, list[str]]:
+    out = {k: [] for k in _CLASS_KEY.values()}
+    t, x, y, v = log["t"], log["x"], log["y"], log["v"]
+    last_id, last_time, last_loc = None, -math.inf, None
+    contacts = sorted(zip(log["contact_tick"].tolist(), log["contact_actor"].tolist(),
+                          log["contact_class"].tolist()), key=lambda c: c[0])
+    by_tick: dict[int, list] = {}
+    for tick, actor, cls in contacts:
+        by_tick.setdefault(tick, []).append((actor, cls))
+    for k in range(len(t)):
+        if last_id is not None and t[k] - last_time > COLLISION_TIME:
+            last_id = None
+        if last_loc is not None and math.hypot(x[k] - last_loc[0], y[k] - last_loc[1]) > COLLISION_RADIUS:
+            last_loc = None
+        for actor, cls in by_tick.get(k + 1, []):  # contact ticks count from 1, log rows from 0
+            if actor == last_id or last_loc is not None or v[k] < EPSILON:
+                continue
+            last_id, last_time, last_loc = actor, t[k], (x[k], y[k])
+            out[_CLASS_KEY[cls]].append(f"Agent collided against object with type={_TYPE_ID[cls]} and "
+                                        f"id={actor} at {loc(x[k], y[k])}")
+    return out
+
+
+def _segments_intersect(p1, p2, q1, q2) -> bool:
+    def cross(o, a, b):
+        return (a[0] - o[0]) * (b[1] - o[1]) - (a[1] - o[1]) * (b[0] - o[0])
+    d1, d2 = cross(q1, q2, p1), cross(q1, q2, p2)
+    d3, d4 = cross(p1, p2, q1), cross(p1, p2, q2)
+    return (d1 * d2 < 0) and (d3 * d4 < 0)
+
+
+def red_lights(log: dict, plan: GlobalPlan, net) -> list[str]:
+    lights = [p for p in plan.passages if p.tls]
+    out, last = [], None
+    lines = []
+    for p in lights:
+        segs = []
+        for ln in net.getEdge(p.from_edge).getLanes():
+            if not ln.allows("passenger"):
+                continue
+            sh = np.asarray(ln.getShape(), dtype=float)[:, :2]
+            fwd = (sh[-1] - sh[-2]) / max(np.hypot(*(sh[-1] - sh[-2])), 1e-9)
+            n = np.array([-fwd[1], fwd[0]]) * 0.6 * ln.getWidth()
+            segs.append((sh[-1] - n, sh[-1] + n, fwd))
+        centre = np.mean([s[0] + s[1] for s in segs], axis=0) / 2 if segs else np.zeros(2)
+        lines.append((segs, centre))
+    hl = LENGTH / 2
+    for k in range(len(log["t"])):
+        x, y, yaw = log["x"][k], log["y"][k], log["yaw"][k]
+        f = np.array([math.cos(yaw), math.sin(yaw)])
+        tail = (np.array([x, y]) - 0.8 * hl * f, np.array([x, y]) - (hl + 1.0) * f)
+        for j, p in enumerate(lights):
+            name = f"{p.tls}:{p.link}"
+            segs, centre = lines[j]
+            if name == last or log["tls"][k, j] not in _RED or math.hypot(*(centre - (x, y))) > RED_LIGHT_DIST:
+                continue
+            for a, b, fwd in segs:
+                if f @ fwd > 0 and _segments_intersect(tail[0], tail[1], a, b):
+                    out.append(f"Agent ran a red light {name} at {loc(*centre)}")
+                    last = name
+                    break
+    return out
+
+
+def stop_signs(log: dict, plan: GlobalPlan) -> list[str]:
+    out = []
+    s_ego = plan.s[log["route_index"].astype(int)]
+    for p in plan.passages:
+        if p.state not in ("s", "w"):
+            continue
+        zone = (s_ego >= p.s_in - STOP_BEFORE) & (s_ego <= p.s_in + STOP_AFTER)
+        if not zone.any():
+            continue
+        left = np.flatnonzero(s_ego > p.s_in + STOP_AFTER)
+        if len(left) == 0:
+            continue  # never left the zone: no verdict (the Leaderboard waits too)
+        stopped = (log["v"][zone] < STOP_SPEED).any()
+        if not stopped:
+            x, y, _ = plan.path.pose(p.s_in)
+            out.append(f"Agent ran a stop with id={p.junction} at {loc(x, y)}")
+    return out
+
+
+def outside_lanes(log: dict, plan: GlobalPlan, lanes: LaneIndex, spans) -> list[str]:
+    xy = np.stack([log["x"], log["y"]], 1)
+    if len(xy) == 0:
+        return []
+    near = lanes.nearest(xy)
+    outside = near.dist > near.width / 2 + OUTSIDE_MARGIN
+    diff = np.degrees((near.heading - log["yaw"]) % (2 * math.pi))
+    wrong = (~near.junction) & (diff >= WRONG_DEG) & (diff <= 360.0 - WRONG_DEG)
+    s_ego = plan.s[log["route_index"].astype(int)]
+    for kind, s0, s1, params in spans:  # TwoWays scenarios switch the wrong-lane check off
+        if kind == "ParkedObstacle" and params.get("bypass") == "oncoming":
+            wrong &= ~((s_ego >= s0) & (s_ego <= s1 + SCENARIO_END))
+    fwd = np.stack([np.cos(plan.yaw), np.sin(plan.yaw)], 1)
+    i, total, bad = 0, 0.0, 0.0
+    n = len(plan.s)
+    for k in range(len(xy)):
+        for j in range(i + 1, min(i + 4, n)):
+            if (xy[k] - plan.xy[j]) @ fwd[j] > 0:
+                d = float(plan.s[j] - plan.s[i])
+                total += d
+                if outside[k] or wrong[k]:
+                    bad += d
+                i = j
+    if bad <= 0:
+        return []
+    return [f"Agent went outside its route lanes for about {round(bad, 3)} meters "
+            f"({round(100 * bad / total, 2)}% of the completed route)"]
+
+
+def min_speed(log: dict, plan: GlobalPlan, rules: str, ended_normally: bool) -> list[str]:
+    checkpoints = MIN_SPEED_CHECKPOINTS[rules]
+    cp = plan.length / checkpoints
+    out, last_cp, sum_ego, sum_bg, n = [], 0.0, 0.0, 0.0, 0
+    always = rules == "b2d"
+
+    def close():
+        value = round(100 * sum_ego / sum_bg, 2) if n > 0 and sum_bg != 0 else 100
+        if always or value < 100:
+            out.append(f"Average speed is {value}% of the surrounding traffic's one")
+
+    cum = plan.s
+    i = 0
+    for k in range(len(log["t"])):
+        i = int(log["route_index"][k])
+        if cum[i] - last_cp > cp:
+            close()
+            last_cp, sum_ego, sum_bg, n = float(cum[i]), 0.0, 0.0, 0
+        bg = log["bg_speed"][k]
+        if not math.isnan(bg):
+            sum_bg += bg
+            sum_ego += log["v"][k]
+            n += 1
+    for _ in range(2 if ended_normally else 1):  # terminate() runs twice on a normal end
+        if cum[i] / plan.length > 0.95:
+            close()
+    return out
+
+
+def scenario_timeouts(log: dict, plan: GlobalPlan, spans) -> list[str]:
+    out = []
+    s_ego = plan.s[log["route_index"].astype(int)]
+    t = log["t"]
+    for kind, s0, s1, _ in spans:
+        if kind not in TIMEOUT_HAZARDS:
+            continue
+        started = np.flatnonzero(s_ego >= s0)
+        if len(started) == 0:
+            continue
+        t0 = t[started[0]]
+        ended = np.flatnonzero(s_ego >= s1 + SCENARIO_END)
+        t_end = t[ended[0]] if len(ended) else t[-1]
+        if t_end - t0 > SCENARIO_TIMEOUT:
+            out.append("Agent timed out a scenario")
+    return out
+
+
+def detect(log: dict, plan: GlobalPlan, route: Route, net, status: str, rules: str = "lb2.0") -> dict[str, list[str]]:
+    """All infraction lists of one route run, from its log and how it ended."""
+    ev = {k: [] for k in KEYS}
+    if len(log["t"]) == 0:
+        return ev
+    spans = hazard_spans(plan, route)
+    ev.update(collisions(log))
+    ev["red_light"] = red_lights(log, plan, net)
+    ev["stop_infraction"] = stop_signs(log, plan)
+    ev["outside_route_lanes"] = outside_lanes(log, plan, LaneIndex.for_town(route.town), spans)
+    ended_normally = status in (criteria.COMPLETED, criteria.FAILED_DEVIATION, criteria.FAILED_BLOCKED,
+                                criteria.FAILED_TIMEOUT)
+    ev["min_speed_infractions"] = min_speed(log, plan, rules, ended_normally)
+    ev["scenario_timeouts"] = scenario_timeouts(log, plan, spans)
+    x, y = log["x"][-1], log["y"][-1]
+    if status == criteria.FAILED_DEVIATION:
+        ev["route_dev"] = [f"Agent deviated from the route at {loc(x, y)}"]
+    elif status == criteria.FAILED_BLOCKED:
+        ev["vehicle_blocked"] = [f"Agent got blocked at {loc(x, y)}"]
+    elif status == criteria.FAILED_TIMEOUT:
+        ev["route_timeout"] = ["Route timeout."]
+    return ev

@@ -1,0 +1,111 @@
+"""The files of a run folder, written from the route records (atomically, every time).
+
+    records.csv    one row per route run: status, DS, RC, IS, every infraction count,
+                   outside-lanes %, Collision/km, km driven, times, stability metrics
+    summary.csv    per metric: the mean over route runs with a 95 % bootstrap interval
+                   (2000 resamples of the routes, seeded: same records -> same file),
+                   and the Leaderboard's per-km infraction rates
+    results.json   the Leaderboard 2.0 results file (``--checkpoint``), see harness.scoring
+"""
+from __future__ import annotations
+
+import csv
+import json
+import math
+import os
+from pathlib import Path
+
+import numpy as np
+
+from harness.runner import RECORD_FIELDS, STABILITY
+from harness.scoring import LABELS, results
+
+BOOTSTRAP = 2000  # resamples
+BOOTSTRAP_SEED = 0
+COLLISION_KEYS = ("collisions_layout", "collisions_pedestrian", "collisions_vehicle")
+
+
+def _atomic_write(path: Path, text: str) -> None:
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_text(text)
+    os.replace(tmp, path)
+
+
+def _sorted(records: list[dict]) -> list[dict]:
+    return sorted(records, key=lambda r: (r["repetition"], int(r["route_id"]) if str(r["route_id"]).isdigit()
+                                          else 0, str(r["route_id"])))
+
+
+def write_records_csv(records: list[dict], path: Path) -> None:
+    tmp = path.with_name(path.name + ".tmp")
+    with open(tmp, "w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=RECORD_FIELDS, extrasaction="ignore")
+        w.writeheader()
+        for r in _sorted(records):
+            w.writerow({k: (v.splitlines()[0] if isinstance(v, str) and v else v) for k, v in r.items()})
+    os.replace(tmp, path)
+
+
+def collisions_per_km(records: list[dict]) -> float:
+    """Summed collisions over summed completed km (not a mean of per-route rates)."""
+    km = sum(r["km_driven"] for r in records)
+    n = sum(r[k] for r in records for k in COLLISION_KEYS)
+    return n / km if km > 0 else math.nan
+
+
+def bootstrap(records: list[dict], stat, rng: np.random.Generator) -> tuple[float, float, float]:
+    """(value, 2.5 %, 97.5 %) of stat(records) with routes resampled with replacement."""
+    value = stat(records)
+    if len(records) < 2:
+        return value, math.nan, math.nan
+    draws = []
+    for _ in range(BOOTSTRAP):
+        idx = rng.integers(len(records), size=len(records))
+        draws.append(stat([records[i] for i in idx]))
+    draws = np.asarray(draws, dtype=float)
+    draws = draws[np.isfinite(draws)]
+    if len(draws) == 0:
+        return value, math.nan, math.nan
+    return value, float(np.percentile(draws, 2.5)), float(np.percentile(draws, 97.5))
+
+
+def _mean_of(key: str):
+    def stat(rs: list[dict]) -> float:
+        vals = np.array([r[key] for r in rs], dtype=float)
+        return float(np.nanmean(vals)) if np.isfinite(vals).any() else math.nan
+    return stat
+
+
+def summary_rows(records: list[dict], result: dict) -> list[dict]:
+    rng = np.random.default_rng(BOOTSTRAP_SEED)
+    rows = []
+    for name, stat in [("driving_score", _mean_of("ds")), ("route_completion", _mean_of("rc")),
+                       ("infraction_penalty", _mean_of("is")), ("collisions_per_km", collisions_per_km),
+                       *[(k, _mean_of(k)) for k in STABILITY]]:
+        v, lo, hi = bootstrap(records, stat, rng)
+        rows.append({"metric": name, "value": v, "ci95_low": lo, "ci95_high": hi, "routes": len(records)})
+    for k, v in result["_checkpoint"]["global_record"]["infractions"].items():
+        unit = "km" if k == "outside_route_lanes" else "per km"
+        rows.append({"metric": f"{k} ({unit})", "value": v, "ci95_low": "", "ci95_high": "", "routes": len(records)})
+    return rows
+
+
+def write_outputs(records: list[dict], total: int, out: Path, checkpoint: Path, sensors: list[str],
+                  finished: bool, summary: bool = True) -> dict:
+    """Write records.csv, results.json (at ``checkpoint``) and, if asked, summary.csv."""
+    write_records_csv(records, out / "records.csv")
+    lb = [r["lb"] for r in _sorted(records)]
+    result = results(lb, total, sensors, finished)
+    _atomic_write(checkpoint, json.dumps(result, indent=2) + "\n")
+    if summary and records:
+        tmp = out / "summary.csv.tmp"
+        with open(tmp, "w", newline="") as f:
+            w = csv.DictWriter(f, fieldnames=["metric", "value", "ci95_low", "ci95_high", "routes"])
+            w.writeheader()
+            for row in summary_rows(records, result):
+                w.writerow(row)
+        os.replace(tmp, out / "summary.csv")
+    return result
+
+
+__all__ = ["write_outputs", "write_records_csv", "summary_rows", "collisions_per_km", "bootstrap", "LABELS"]

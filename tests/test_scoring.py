@@ -1,0 +1,173 @@
+"""Leaderboard scoring from infraction lists, against values worked out by hand from the
+rules (notes leaderboard2.md §5-§6), and `sumo-scimm score` on a CARLA-style file."""
+from __future__ import annotations
+
+import json
+import math
+
+import pytest
+
+from harness.cli import main
+from harness.infractions import KEYS
+from harness.scoring import global_record, infraction_penalty, rescore_results, route_record, route_status
+
+PED = "Agent collided against object with type=walker.pedestrian.0001 and id=12 at (x=1.0, y=2.0, z=0.0)"
+VEH = "Agent collided against object with type=vehicle.tesla.model3 and id=13 at (x=1.0, y=2.0, z=0.0)"
+LAYOUT = "Agent collided against object with type=static.prop.mesh and id=14 at (x=1.0, y=2.0, z=0.0)"
+RED = "Agent ran a red light 77 at (x=3.0, y=4.0, z=0.0)"
+STOP = "Agent ran a stop with id=88 at (x=3.0, y=4.0, z=0.0)"
+TIMEOUT = "Agent timed out a scenario"
+YIELD = "Agent failed to yield to an emergency vehicle"
+
+
+def speed(p):
+    return f"Average speed is {p}% of the surrounding traffic's one"
+
+
+def outside(m, q):
+    return f"Agent went outside its route lanes for about {m} meters ({q}% of the completed route)"
+
+
+def inf(**lists):
+    return {k: lists.get(k, []) for k in KEYS}
+
+
+@pytest.mark.parametrize("key,msg,factor", [
+    ("collisions_pedestrian", PED, 0.5), ("collisions_vehicle", VEH, 0.6), ("collisions_layout", LAYOUT, 0.65),
+    ("red_light", RED, 0.7), ("stop_infraction", STOP, 0.8), ("scenario_timeouts", TIMEOUT, 0.7),
+    ("yield_emergency_vehicle_infractions", YIELD, 0.7)])
+def test_each_penalty_alone(key, msg, factor):
+    assert infraction_penalty(inf(**{key: [msg]})) == pytest.approx(factor, abs=1e-12)
+    assert infraction_penalty(inf(**{key: [msg, msg]})) == pytest.approx(factor ** 2, abs=1e-12)
+
+
+def test_penalties_combine_by_product_and_ds_is_rc_times_is():
+    # 0.5 * 0.7 * 0.8 = 0.28; DS = 80 * 0.28 = 22.4
+    r = route_record(0, "RouteScenario_0_rep0", inf(collisions_pedestrian=[PED], red_light=[RED],
+                                                     stop_infraction=[STOP]), 80.0,
+                     {"route_length": 300.0, "duration_game": 60.0, "duration_system": 5.0})
+    assert r["scores"] == {"score_route": 80.0, "score_penalty": 0.28, "score_composed": 22.4}
+    assert r["num_infractions"] == 3
+
+
+def test_min_speed_formula_and_each_checkpoint_counts():
+    # 1 - 0.3 (1 - p/100): p = 50 -> 0.85, p = 80 -> 0.94; the duplicated final checkpoint
+    # (two identical messages) is applied twice: 0.82 * 0.82
+    assert infraction_penalty(inf(min_speed_infractions=[speed(50.0)])) == pytest.approx(0.85)
+    assert infraction_penalty(inf(min_speed_infractions=[speed(50.0), speed(80.0)])) == pytest.approx(0.85 * 0.94)
+    assert infraction_penalty(inf(min_speed_infractions=[speed(40.0), speed(40.0)])) == pytest.approx(0.6724)
+
+
+def test_outside_lanes_factor():
+    assert infraction_penalty(inf(outside_route_lanes=[outside(12.5, 12.5)])) == pytest.approx(0.875)
+
+
+def test_lb21_is_additive_and_b2d_ignores_min_speed():
+    two = inf(collisions_pedestrian=[PED], red_light=[RED])
+    assert infraction_penalty(two, "lb2.1") == pytest.approx(1 / (1 + 1.0 + 0.4))
+    with_out = inf(collisions_pedestrian=[PED], red_light=[RED], outside_route_lanes=[outside(30.0, 10.0)])
+    assert infraction_penalty(with_out, "lb2.1") == pytest.approx(0.9 / 2.4)
+    slow = inf(min_speed_infractions=[speed(50.0)])
+    assert infraction_penalty(slow, "lb2.1") == pytest.approx(1 / (1 + 0.4 * 0.5))
+    assert infraction_penalty(slow, "b2d") == 1.0
+
+
+def test_status_texts():
+    assert route_status(100.0, inf()) == "Perfect"
+    assert route_status(100.0, inf(min_speed_infractions=[speed(90.0)])) == "Completed"
+    assert route_status(60.0, inf(route_dev=["Agent deviated from the route at (x=1.0, y=1.0, z=0.0)"])) == \
+        "Failed - Agent deviated from the route"
+    # the later message overwrites the caller's crash message
+    assert route_status(10.0, inf(route_timeout=["Route timeout."]), "Agent crashed") == "Failed - Agent timed out"
+    assert route_status(10.0, inf(), "Agent crashed") == "Failed - Agent crashed"
+    assert route_status(10.0, inf()) == "Failed"
+
+
+def _record(i, rc, infractions, length=1000.0):
+    return route_record(i, f"RouteScenario_{i}_rep0", infractions, rc,
+                        {"route_length": length, "duration_game": 10.0, "duration_system": 1.0})
+
+
+def test_global_record_unrun_routes_count_as_zero_and_std_dev_rule():
+    recs = [_record(0, 100.0, inf()), _record(1, 50.0, inf(), length=500.0)]
+    g = global_record(recs, total=4)
+    # means over N = 4 planned runs: DS (100 + 50) / 4 = 37.5
+    assert g["scores_mean"] == {"score_composed": 37.5, "score_route": 37.5, "score_penalty": 0.5}
+    # sqrt(((100 - 37.5)^2 + (50 - 37.5)^2) / (4 - 1)) = sqrt(4062.5 / 3) = 36.799
+    assert g["scores_std_dev"]["score_composed"] == 36.799
+    # sqrt(((1 - 0.5)^2 * 2) / 3) = 0.408
+    assert g["scores_std_dev"]["score_penalty"] == 0.408
+    assert global_record(recs[:1], total=1)["scores_std_dev"]["score_composed"] == 0.0
+
+
+def test_per_km_rates_and_the_outside_lanes_kilometre_special_case():
+    # km driven = 1000 m * 100 % + 500 m * 50 % = 1.25 km; 1 pedestrian collision -> 0.8 / km
+    recs = [_record(0, 100.0, inf(collisions_pedestrian=[PED], outside_route_lanes=[outside(150.0, 15.0)])),
+            _record(1, 50.0, inf(outside_route_lanes=[outside(30.0, 12.0)]), length=500.0)]
+    g = global_record(recs, total=2)
+    assert g["infractions"]["collisions_pedestrian"] == 0.8
+    assert g["infractions"]["red_light"] == 0.0
+    # outside lanes: metres of each route's first message / 1000, summed, NOT divided by km
+    assert g["infractions"]["outside_route_lanes"] == 0.18
+    assert g["status"] == "Failed" or g["status"] == "Completed"
+
+
+def _carla_file():
+    """A results file as CARLA's leaderboard writes it (values worked out by hand below)."""
+    def rec(i, rc, infractions, status, length, scores):
+        return {"index": i, "route_id": f"RouteScenario_{i}_rep0", "status": status,
+                "num_infractions": sum(len(v) for v in infractions.values()),
+                "infractions": inf(**infractions), "scores": scores,
+                "meta": {"route_length": length, "duration_game": 100.0, "duration_system": 50.0}}
+    records = [
+        rec(0, 100.0, {"collisions_vehicle": [VEH], "min_speed_infractions": [speed(62.5), speed(62.5)]},
+            "Completed", 2000.0, {"score_route": 100.0, "score_penalty": 0.0, "score_composed": 0.0}),
+        rec(1, 42.5, {"red_light": [RED], "route_dev": ["Agent deviated from the route at (x=1.0, y=2.0, z=0.0)"],
+                      "outside_route_lanes": [outside(20.0, 8.0)]},
+            "Failed - Agent deviated from the route", 1000.0,
+            {"score_route": 42.5, "score_penalty": 0.0, "score_composed": 0.0}),
+    ]
+    return {"_checkpoint": {"global_record": {}, "progress": [2, 3], "records": records},
+            "entry_status": "Finished", "eligible": True, "sensors": ["carla_camera"], "values": [], "labels": []}
+
+
+def test_score_reproduces_a_carla_results_file(tmp_path, capsys):
+    src = tmp_path / "simulation_results.json"
+    src.write_text(json.dumps(_carla_file()))
+    out = tmp_path / "rescored.json"
+    assert main(["score", str(src), "--out", str(out)]) == 0
+    data = json.loads(out.read_text())
+    r0, r1 = data["_checkpoint"]["records"]
+    # route 0: vehicle 0.6, min speed 62.5 % twice: (1 - 0.3 * 0.375)^2 = 0.8875^2 = 0.78765625
+    assert r0["scores"]["score_penalty"] == round(0.6 * 0.78765625, 6) == 0.472594
+    assert r0["scores"]["score_composed"] == 47.259375
+    # route 1: red 0.7, outside 8 % -> 0.92: IS = 0.644; DS = 42.5 * 0.644 = 27.37
+    assert r1["scores"]["score_penalty"] == 0.644 and r1["scores"]["score_composed"] == 27.37
+    g = data["_checkpoint"]["global_record"]
+    # 3 planned routes, 2 run: DS mean = (47.259375 + 27.37) / 3 = 24.876458
+    assert g["scores_mean"]["score_composed"] == 24.876458
+    assert g["scores_mean"]["score_route"] == 47.5
+    # km = 2.0 + 0.425 = 2.425: 1 vehicle collision / 2.425 = 0.412; 3 min-speed... 2 / 2.425 = 0.825
+    assert g["infractions"]["collisions_vehicle"] == 0.412
+    assert g["infractions"]["min_speed_infractions"] == 0.825
+    assert g["infractions"]["red_light"] == 0.412 and g["infractions"]["route_dev"] == 0.412
+    assert g["infractions"]["outside_route_lanes"] == 0.02  # 20 m -> 0.02 km, not per km
+    assert g["status"] == "Failed" and g["meta"]["exceptions"] == [["RouteScenario_1_rep0", 1,
+                                                                   "Failed - Agent deviated from the route"]]
+    assert data["values"][:3] == ["24.876458", "47.5", "0.372198"]
+    assert data["labels"][0] == "Avg. driving score" and len(data["values"]) == len(data["labels"]) == 15
+
+
+def test_score_rejects_what_is_not_a_results_file(tmp_path, capsys):
+    bad = tmp_path / "x.json"
+    bad.write_text('{"hello": 1}')
+    assert main(["score", str(bad)]) == 2
+    assert "not a Leaderboard results file" in capsys.readouterr().err
+    bad.write_text("{nope")
+    assert main(["score", str(bad)]) == 2
+
+
+def test_rescoring_is_idempotent():
+    data = rescore_results(_carla_file())
+    assert rescore_results(data) == data
+    assert not math.isnan(data["_checkpoint"]["global_record"]["scores_mean"]["score_penalty"])

@@ -93,6 +93,7 @@ def validate_sensors(specs: list[dict]) -> None:
 # Agents shipped with the harness, by CLI name.
 BUILTIN_AGENTS = {
     "route_follower": "harness.route_follower:RouteFollower",
+    "expert": "harness.expert:Expert",
 }
 DEFAULT_AGENT = "route_follower"  # the best agent that exists until the expert ships
 

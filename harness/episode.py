@@ -103,7 +103,7 @@ def run_episode(route: Route, agent_name: str, agent_config: str | None, seed: i
     net = load_net(route.town)
     plan = build_plan(route, net)
     log = EpisodeLog()
-    world = World(route.town, int(ss.generate_state(1)[0] % (2**31 - 1)))
+    world = World(route.town, int(ss.generate_state(1)[0] % (2**31 - 1)), background_roads(route, net))
     agent = None
     status, message, tick = criteria.FAILED_SIMULATION, "", 0
     try:
@@ -182,6 +182,20 @@ def run_episode(route: Route, agent_name: str, agent_config: str | None, seed: i
         world.close()
     return EpisodeResult(status, float(rc), round(tick * DT, 3), wallclock.perf_counter() - wall0,
                          tick, message, log, plan.length, plan, loop_time)
+
+
+def background_roads(route: Route, net) -> frozenset[str]:
+    """Edges whose background vehicles are the minimum-speed reference: the route's edges
+    and their reverse. The Leaderboard's reference is its background bubble: vehicles
+    ahead of and behind the ego in its lanes and in the opposite lanes; cross traffic that
+    has green while the ego waits at a red light is not what it compares with."""
+    roads = set(route.edges)
+    for e in route.edges:
+        edge = net.getEdge(e)
+        rev = f"{edge.getToNode().getID()}_{edge.getFromNode().getID()}"
+        if net.hasEdge(rev):
+            roads.add(rev)
+    return frozenset(roads)
 
 
 class _AgentSetupError(Exception):

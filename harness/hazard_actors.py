@@ -34,6 +34,8 @@ from scenarios.routefile import Hazard
 CURB_MARGIN = 1.2  # walkers start / end this far beyond the road edge [m]
 FLOW_TIME = 25.0  # junction traffic keeps coming this long after the trigger [s]
 HOLD_TIME = 3.0  # a hard-braking leader stays stopped this long [s]
+CUT_IN_SPEED = 6.0  # the cut-in vehicle drives on ahead at this speed [m/s]
+RED_HOLD = 6.0  # the switched light stays red this long after the ego could reach it [s]
 # moveToXY for walkers: bit 1 (place exactly, off-lane too) + bit 2 (ignore permissions).
 # With keepRoute 0 or 2, SUMO 1.28 segfaulted in simulationStep when a walker was moved
 # across a crosswalk (town12_short route 29); 6 does not.
@@ -92,7 +94,9 @@ class Scripted:
             libsumo.person.moveToXY(self.id, "", x, y, sumo_angle(self.yaw), keepRoute=PERSON_KEEP_ROUTE)
         else:
             fx, fy = x + math.cos(self.yaw) * 2.3, y + math.sin(self.yaw) * 2.3
-            libsumo.vehicle.moveToXY(self.id, "", -1, fx, fy, sumo_angle(self.yaw), keepRoute=2)
+            # the last placement maps the vehicle back onto its route's lane (keepRoute 1),
+            # so that SUMO drives it on after release; off-lane (2) it would stand still
+            libsumo.vehicle.moveToXY(self.id, "", -1, fx, fy, sumo_angle(self.yaw), keepRoute=1 if f >= 1.0 else 2)
             libsumo.vehicle.setSpeed(self.id, self.speed)
         self.dist += self.speed * DT
         return f < 1.0
@@ -119,7 +123,7 @@ class HazardActor:
         self.flow_next = 0.0
         self.leader: str | None = None
         self.brake_state = "drive"
-        self.released: list[Scripted] = []
+        self.cruise: tuple[str, float] | None = None  # cut-in vehicle driven on along the route: (id, s)
 
     def timeout_active(self, ego_s: float, time: float) -> bool:
         """Whether this hazard's 240 s scenario timeout is running (Leaderboard: the
@@ -164,9 +168,10 @@ class HazardActor:
         for a in list(self.scripted):
             if not a.place():
                 self.scripted.remove(a)
-                if not a.person:
-                    libsumo.vehicle.setSpeedMode(a.id, 31)
-                    libsumo.vehicle.setSpeed(a.id, -1)
+                if not a.person:  # the cut-in vehicle drives on ahead of the ego
+                    self.cruise = (a.id, self.site_s + 10.0)
+        if self.cruise is not None:
+            self._drive_on()
         if self.h.type in ("SignalizedJunction", "StopSignJunction", "UnprotectedLeftTurn"):
             if time - self.t0 <= FLOW_TIME and time >= self.flow_next:
                 self._spawn_flow()
@@ -234,9 +239,29 @@ class HazardActor:
             libsumo.vehicle.setLaneChangeMode(vid, 0)
             self.scripted.append(Scripted(vid, p0, np.array([x1, y1]), 4.0, person=False))
         elif t == "SignalizedJunction":
-            self._switch_to_red()
+            self._switch_to_red(ego_s, ego_speed)
 
-    def _switch_to_red(self) -> None:
+    def _drive_on(self) -> None:
+        """Move the cut-in vehicle along the route at CUT_IN_SPEED, then remove it.
+
+        It stays harness-driven: released to SUMO after a moveToXY cut-in, a vehicle keeps
+        the one-edge route moveToXY gave it and can stop for good in front of the ego."""
+        vid, s = self.cruise
+        s += CUT_IN_SPEED * DT
+        if s >= self.plan.length or vid not in libsumo.vehicle.getIDList():
+            if vid in libsumo.vehicle.getIDList():
+                libsumo.vehicle.remove(vid)
+            self.cruise = None
+            return
+        x, y, yaw = self.plan.path.pose(s)
+        libsumo.vehicle.moveToXY(vid, "", -1, x + math.cos(yaw) * 2.3, y + math.sin(yaw) * 2.3,
+                                 sumo_angle(yaw), keepRoute=2)
+        libsumo.vehicle.setSpeed(vid, CUT_IN_SPEED)
+        self.cruise = (vid, s)
+
+    def _switch_to_red(self, ego_s: float, ego_speed: float) -> None:
+        """Turn the ego's light red now, for as long as the ego needs to reach it plus
+        RED_HOLD seconds: a red light the ego must stop at, not a half-minute wait."""
         pas = next((q for q in self.plan.passages if q.junction == self.h.params["junction"] and q.tls), None)
         if pas is None:
             return
@@ -245,6 +270,8 @@ class HazardActor:
         for k, st in enumerate(states):
             if st[pas.link] in "rR" and states[k - 1][pas.link] in "yY":
                 libsumo.trafficlight.setPhase(pas.tls, k)
+                arrive = max(pas.s_in - ego_s, 0.0) / max(ego_speed, 3.0)
+                libsumo.trafficlight.setPhaseDuration(pas.tls, min(arrive + RED_HOLD, logic.phases[k].duration))
                 return
 
     def _approaches(self) -> list[str]:

@@ -32,6 +32,7 @@ PERSON_PREFIX = "ped"  # every person the harness adds has an id starting with t
 VEHICLE, PEDESTRIAN, STATIC = 0, 1, 2
 
 _POS, _ANGLE, _SPEED = libsumo.constants.VAR_POSITION, libsumo.constants.VAR_ANGLE, libsumo.constants.VAR_SPEED
+_ROAD = libsumo.constants.VAR_ROAD_ID
 
 
 def yaw_from_sumo(angle_deg: float) -> float:
@@ -55,13 +56,16 @@ class Snapshot:
     speed: np.ndarray  # (K,)
     size: np.ndarray  # (K, 2) length, width
     cls: np.ndarray  # (K,) int
-    background_speed: float  # mean speed of background vehicles near the ego, nan if none
+    background_speed: float  # mean speed of the background vehicles that count, nan if none
 
 
 class World:
     """A running libsumo simulation of one town, with the ego in it."""
 
-    def __init__(self, town: str, seed: int):
+    def __init__(self, town: str, seed: int, background_roads: frozenset[str] = frozenset()):
+        """Start SUMO on the town's net. ``background_roads``: the edges whose background
+        vehicles make the minimum-speed reference (all within CONTEXT_RADIUS if empty)."""
+        self.background_roads = background_roads
         libsumo.start(["sumo", "-n", str(net_path(town)), "--step-length", str(DT),
                        "--seed", str(seed), "--no-step-log", "true", "--no-warnings", "true",
                        "--collision.action", "none", "--time-to-teleport", "120",
@@ -92,21 +96,33 @@ class World:
 
     # --- the ego ------------------------------------------------------------------------
     def add_ego(self, edges: tuple[str, ...], lane: int, pos: float) -> None:
+        self._ego_edges = list(edges)
+        self._readds = 0
         libsumo.route.add("ego_route", list(edges))
-        libsumo.vehicle.add(EGO, "ego_route", typeID="ego", departLane=str(lane),
-                            departPos=f"{pos + LENGTH / 2:.2f}", departSpeed="0")
+        self._insert_ego("ego_route", str(lane), f"{pos + LENGTH / 2:.2f}")
+
+    def _insert_ego(self, route_id: str, lane: str, pos: str) -> None:
+        libsumo.vehicle.add(EGO, route_id, typeID="ego", departLane=lane, departPos=pos, departSpeed="0")
         libsumo.vehicle.setSpeedMode(EGO, 0)
         libsumo.vehicle.setLaneChangeMode(EGO, 0)
         libsumo.vehicle.subscribeContext(EGO, libsumo.constants.CMD_GET_VEHICLE_VARIABLE, CONTEXT_RADIUS,
-                                         [_POS, _ANGLE, _SPEED])
+                                         [_POS, _ANGLE, _SPEED, _ROAD])
         libsumo.vehicle.subscribeContext(EGO, libsumo.constants.CMD_GET_PERSON_VARIABLE, CONTEXT_RADIUS,
-                                         [_POS, _ANGLE, _SPEED])
+                                         [_POS, _ANGLE, _SPEED, _ROAD])
 
     def move_ego(self, s: EgoState) -> None:
         """Place the ego (centre pose s) for the next step; SUMO wants the front bumper."""
         fx = s.x + math.cos(s.yaw) * LENGTH / 2
         fy = s.y + math.sin(s.yaw) * LENGTH / 2
-        libsumo.vehicle.moveToXY(EGO, "", -1, fx, fy, sumo_angle(s.yaw), keepRoute=2)
+        try:
+            libsumo.vehicle.moveToXY(EGO, "", -1, fx, fy, sumo_angle(s.yaw), keepRoute=2)
+        except libsumo.TraCIException:
+            # SUMO dropped the ego: it teleported it out of a jam, or the ego ran off the end
+            # of the one-edge route SUMO gives a vehicle moved off its route. Put it back.
+            self._readds += 1
+            libsumo.route.add(f"ego_route{self._readds}", self._ego_edges)
+            self._insert_ego(f"ego_route{self._readds}", "best", "0")
+            libsumo.vehicle.moveToXY(EGO, "", -1, fx, fy, sumo_angle(s.yaw), keepRoute=2)
         libsumo.vehicle.setSpeed(EGO, s.v)
 
     def step(self) -> None:
@@ -141,7 +157,7 @@ class World:
             off = 0.0 if person else length / 2
             ids.append(vid)
             rows.append((fx - math.cos(yaw) * off, fy - math.sin(yaw) * off, yaw, v, length, width, cls))
-            if is_bg:
+            if is_bg and (not self.background_roads or var[_ROAD] in self.background_roads):
                 bg.append(v)
         a = np.array(rows, dtype=float).reshape(-1, 7)
         return Snapshot(ids, a[:, :2], a[:, 2], a[:, 3], a[:, 4:6], a[:, 6].astype(int),

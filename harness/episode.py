@@ -23,7 +23,7 @@ from harness.agent import Prediction, load_agent, split_output, validate_sensors
 from harness.contacts import overlaps
 from harness.hazard_actors import HazardActor
 from harness.plan import GlobalPlan, build_plan, to_ego
-from harness.traffic import BackgroundTraffic
+from harness.traffic import BackgroundTraffic, RouteBubble
 from harness.world import STATIC, Snapshot, World
 from scenarios.routefile import Route
 from sumo_nets import load_net
@@ -116,6 +116,8 @@ def run_episode(route: Route, agent_name: str, agent_config: str | None, seed: i
             h.setup()
         traffic = BackgroundTraffic(net, plan, rng_traffic)
         traffic.populate()
+        quiet = tuple((h.site_s - 100.0, h.site_s + 150.0) for h in hazards if h.h.type == "ParkedObstacle")
+        bubble = RouteBubble(net, plan, rng_traffic, quiet)
         world.move_ego(ego.state)
         world.step()
         snap = world.snapshot()
@@ -129,6 +131,15 @@ def run_episode(route: Route, agent_name: str, agent_config: str | None, seed: i
             validate_sensors(specs)
         except Exception as exc:  # noqa: BLE001 - any agent failure is recorded, the run goes on
             raise _AgentSetupError(f"{type(exc).__name__}: {exc}") from exc
+        legs = [(g.s1, g.edge, net.getLane(g.lane_in).getIndex()) for g in plan.path.legs]
+
+        def hint(s_route: float) -> tuple[str, int]:
+            """The route's edge and lane at arc length s (the junction after it counts as it)."""
+            for s1, edge, lane in legs:
+                if s_route <= s1:
+                    return edge, lane
+            return legs[-1][1], legs[-1][2]
+
         done = criteria.RouteCompletion(plan)
         in_route, blocked, timeout = criteria.InRoute(plan), criteria.Blocked(), criteria.RouteTimeout(plan)
         props = [p for h in hazards for p in h.props]
@@ -148,11 +159,12 @@ def run_episode(route: Route, agent_name: str, agent_config: str | None, seed: i
                 status, message = criteria.FAILED_AGENT, f"{type(exc).__name__}: {exc}"
                 break
             s = ego.step(control)
-            world.move_ego(s)
             ego_s = float(plan.s[progress])
+            world.move_ego(s, *hint(ego_s))
             for h in hazards:
                 h.update(ego_s, world.time, s.v)
             traffic.update()
+            bubble.update(ego_s, (s.x, s.y), world.time)
             world.step()
             snap = world.snapshot()
             tick += 1

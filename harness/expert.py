@@ -121,8 +121,8 @@ class Expert(AutonomousAgent):
             if kappa > 1e-3:
                 v0 = min(v0, math.sqrt(MAX_LAT_ACC / kappa))
         targets = {"cruise": v0}
-        flags = {"vehicle": False, "walker": False, "light": False, "stop": False, "junction": False,
-                 "obstacle": False}
+        flags = {"leader": False, "vehicle": False, "walker": False, "light": False, "stop": False,
+                 "junction": False, "obstacle": False}
 
         # bypass of a static obstacle in the lane
         self._manage_bypass(s, v, xy, s_a, lat_a, spd, size, cls, targets, flags)
@@ -144,7 +144,7 @@ class Expert(AutonomousAgent):
                                s0=4.0 if cls[k] == VEHICLE else 2.5, t_head=1.0)
                 if t < targets.get("leader", math.inf):
                     targets["leader"] = t
-                    flags["vehicle"] = flags["vehicle"] or cls[k] == VEHICLE
+                    flags["leader"] = flags["leader"] or cls[k] == VEHICLE
                     flags["obstacle"] = flags["obstacle"] or cls[k] == STATIC
 
         # forecast conflicts: walkers and crossing vehicles entering the ego's corridor
@@ -174,9 +174,9 @@ class Expert(AutonomousAgent):
             if cls[k] == STATIC:
                 continue
             vel = spd[k] * np.array([math.cos(yaw_a[k]), math.sin(yaw_a[k])])
+            i_a = min(int(np.searchsorted(plan.s, s_a[k])), n - 1)
+            align = abs((yaw_a[k] - plan.yaw[i_a] + math.pi) % (2 * math.pi) - math.pi)
             if cls[k] == VEHICLE:
-                i_a = min(int(np.searchsorted(plan.s, s_a[k])), n - 1)
-                align = abs((yaw_a[k] - plan.yaw[i_a] + math.pi) % (2 * math.pi) - math.pi)
                 if align < math.radians(20) and spd[k] > 0.3:
                     continue  # parallel traffic: a leader (IDM above) or another lane
                 if abs(lat_a[k]) < LEAD_LAT and s_a[k] > s and align < math.radians(35):
@@ -187,8 +187,14 @@ class Expert(AutonomousAgent):
             lo, hi = max(self.index - 5, 0), min(self.index + 70, n)
             fs, flat = self._project(future, lo, hi)
             flat = flat - self.offset[np.clip(np.searchsorted(plan.s, fs), 0, n - 1)]
-            half = size[k, 1] / 2 if cls[k] == VEHICLE else 0.75
-            inside = np.abs(flat) < HW + half + CORRIDOR
+            if cls[k] == VEHICLE:
+                # PDM-Lite widens both boxes by ~20 %; oncoming traffic in the next lane
+                # passes beside the ego, so only an exact overlap counts for it
+                oncoming = align > math.radians(150)
+                reach = (HW + size[k, 1] / 2) * (1.0 if oncoming else 1.2)
+            else:
+                reach = HW + 0.75 + CORRIDOR / 2
+            inside = np.abs(flat) < reach
             ahead = fs - s
             if cls[k] == PEDESTRIAN:
                 hit = inside & (ahead > 0) & (ahead < max(12.0, v * 3.0 + 8.0))
@@ -242,7 +248,8 @@ class Expert(AutonomousAgent):
     def _clear(self, p, s, xy, yaw_a, spd, cls) -> bool:
         """No other vehicle in the junction or arriving before the ego has crossed it."""
         node = self.node_xy[p.junction]
-        t_ego = (p.s_out - s + HL) / 3.0 + 1.5  # time to clear at a modest speed [s]
+        # time to clear the junction accelerating at 2.5 m/s^2 from a stop, plus 1 s [s]
+        t_ego = math.sqrt(2 * max(p.s_out - s + HL, 1.0) / 2.5) + 1.0
         h_in = self.plan.yaw[min(int(np.searchsorted(self.plan.s, p.s_in)), len(self.plan.s) - 1)]
         for k in range(len(xy)):
             if cls[k] != VEHICLE:
@@ -272,8 +279,9 @@ class Expert(AutonomousAgent):
             self.bypass = None
         if self.bypass is not None:
             return
+        # an obstacle to bypass leaves the ego less than 0.3 m of clearance in its lane
         cand = [k for k in range(len(xy)) if cls[k] == STATIC and 0 < s_a[k] - s < 45
-                and abs(lat_a[k]) < HW + size[k, 1] / 2 + 0.2]
+                and abs(lat_a[k]) - size[k, 1] / 2 < HW + 0.3]
         if not cand:
             return
         k = min(cand, key=lambda q: s_a[q])

@@ -124,6 +124,7 @@ class HazardActor:
         self.leader: str | None = None
         self.brake_state = "drive"
         self.cruise: tuple[str, float] | None = None  # cut-in vehicle driven on along the route: (id, s)
+        self.cleared_lane: str | None = None  # lane kept free of background traffic
 
     def timeout_active(self, ego_s: float, time: float) -> bool:
         """Whether this hazard's 240 s scenario timeout is running (Leaderboard: the
@@ -152,14 +153,17 @@ class HazardActor:
             libsumo.vehicle.setSpeedMode(vid, 0)
             libsumo.vehicle.setLaneChangeMode(vid, 0)
             libsumo.vehicle.setSpeed(vid, 0.0)
+            self.cleared_lane = f"{edge}_{lane}"
         elif t == "DynamicObjectCrossing" and self.h.params["blocker"] == "parked_car":
             x, y, yaw = self.plan.path.pose(self.site_s - 6.0)
             right, _ = _road_sides(self.plan, self.net, self.site_s)
-            off = right - 1.0  # mostly on the shoulder / sidewalk, a little in the lane
+            off = right - 0.4  # on the sidewalk / shoulder, its inner edge ~0.7 m clear of the ego's side
             self.props.append((x + math.sin(yaw) * off, y - math.cos(yaw) * off, yaw, 4.6, 1.9))
 
     def update(self, ego_s: float, time: float, ego_speed: float) -> None:
         """Start at the trigger, then advance scripted actors and flows."""
+        if self.cleared_lane is not None:
+            self._clear_lane()
         if not self.started:
             if ego_s >= self.trigger_s:
                 self.started, self.t0 = True, time
@@ -240,6 +244,14 @@ class HazardActor:
             self.scripted.append(Scripted(vid, p0, np.array([x1, y1]), 4.0, person=False))
         elif t == "SignalizedJunction":
             self._switch_to_red(ego_s, ego_speed)
+
+    def _clear_lane(self) -> None:
+        """Remove background vehicles from the obstacle's lane, as the Leaderboard's
+        obstacle scenarios do (RemoveRoadLane): SUMO traffic cannot pass the obstacle
+        and would queue behind it for good, with the ego behind them."""
+        for vid in libsumo.lane.getLastStepVehicleIDs(self.cleared_lane):
+            if vid.startswith(("bg", "bub")):
+                libsumo.vehicle.remove(vid)
 
     def _drive_on(self) -> None:
         """Move the cut-in vehicle along the route at CUT_IN_SPEED, then remove it.

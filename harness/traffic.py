@@ -8,6 +8,8 @@ of such edges. All choices come from the generator passed in; SUMO's own randomn
 """
 from __future__ import annotations
 
+import math
+
 import libsumo
 import numpy as np
 import sumolib
@@ -96,3 +98,95 @@ class BackgroundTraffic:
             for p in sorted(self.persons - present):
                 self.persons.discard(p)
                 self._spawn_person()
+
+
+BUBBLE_AHEAD = (55.0, 70.0, 85.0)  # route distance ahead of the ego where leaders appear [m]
+BUBBLE_BEHIND = (-40.0, -55.0)  # ... and followers (outside the BEV: 36 m ahead, 12 m behind)
+BUBBLE_ONCOMING = (60.0, 80.0)  # ... and oncoming vehicles on the reverse edges
+BUBBLE_REFRESH = 1.0  # [s] between bubble top-ups
+BUBBLE_RADIUS = 100.0  # a bubble vehicle farther than this from the ego is replaced [m]
+
+
+class RouteBubble:
+    """Background vehicles kept around the ego on its route, like the Leaderboard's
+    BackgroundActivity (vehicles ahead and behind in the ego's lanes, oncoming traffic):
+    they drive with the ego, wait at its lights, and make the minimum-speed reference.
+
+    Every BUBBLE_REFRESH s, missing vehicles are spawned on the route ahead of the ego,
+    behind it, and on the reverse edges ahead, all outside the BEV; a spawn that SUMO
+    cannot insert at once (no space) is dropped.
+    """
+
+    def __init__(self, net: sumolib.net.Net, plan: GlobalPlan, rng: np.random.Generator,
+                 quiet: tuple[tuple[float, float], ...] = ()):
+        """quiet: route intervals [m] where no bubble vehicle is spawned (around obstacles,
+        whose bypass needs a gap in the oncoming lane, as the Leaderboard's scenarios ask
+        their BackgroundActivity for)."""
+        self.net, self.plan, self.rng, self.quiet = net, plan, rng, quiet
+        self.members: dict[str, str] = {}  # id -> role (ahead, behind, oncoming)
+        self.count = 0
+        self.next_time = 0.0
+
+    def _spawn_on_route(self, s: float, role: str) -> None:
+        if not 0.0 <= s <= self.plan.length or any(a <= s <= b for a, b in self.quiet):
+            return
+        for g in self.plan.path.legs:
+            if g.s0 <= s <= g.s1:
+                lane = self.net.getLane(g.lane_in)
+                x, y, _ = self.plan.path.pose(s)
+                pos, _ = lane.getClosestLanePosAndDist((x, y))
+                edges = [h.edge for h in self.plan.path.legs]
+                self._add(edges[edges.index(g.edge):], lane.getIndex(), float(pos), role)
+                return
+
+    def _spawn_oncoming(self, s: float) -> None:
+        if any(a <= s <= b for a, b in self.quiet):
+            return
+        for g in self.plan.path.legs:
+            if g.s0 <= s <= g.s1:
+                edge = self.net.getEdge(g.edge)
+                rev = f"{edge.getToNode().getID()}_{edge.getFromNode().getID()}"
+                if not self.net.hasEdge(rev):
+                    return
+                lane = next((ln for ln in self.net.getEdge(rev).getLanes() if ln.allows("passenger")), None)
+                x, y, _ = self.plan.path.pose(s)
+                pos, _ = lane.getClosestLanePosAndDist((x, y))
+                self._add([rev], lane.getIndex(), float(pos), "oncoming")
+                return
+
+    def _add(self, edges: list[str], lane: int, pos: float, role: str) -> None:
+        self.count += 1
+        vid = f"bub{self.count}"
+        libsumo.route.add(f"r_{vid}", edges)
+        libsumo.vehicle.add(vid, f"r_{vid}", typeID="background", departLane=str(lane),
+                            departPos=f"{pos:.2f}", departSpeed="max")
+        self.members[vid] = role
+
+    def update(self, ego_s: float, ego_xy: tuple[float, float], time: float) -> None:
+        """Drop bubble vehicles that left or could not be inserted, spawn missing ones."""
+        if time < self.next_time:
+            return
+        self.next_time = time + BUBBLE_REFRESH
+        pending = set(libsumo.simulation.getPendingVehicles())
+        alive = set(libsumo.vehicle.getIDList())
+        for vid, role in list(self.members.items()):
+            if vid in pending:
+                libsumo.vehicle.remove(vid)
+                del self.members[vid]
+            elif vid not in alive:
+                del self.members[vid]
+            else:
+                x, y = libsumo.vehicle.getPosition(vid)
+                if math.hypot(x - ego_xy[0], y - ego_xy[1]) > BUBBLE_RADIUS:
+                    libsumo.vehicle.remove(vid)
+                    del self.members[vid]
+        roles = list(self.members.values())
+        for k, d in enumerate(BUBBLE_AHEAD):
+            if roles.count("ahead") <= k:
+                self._spawn_on_route(ego_s + d, "ahead")
+        for k, d in enumerate(BUBBLE_BEHIND):
+            if roles.count("behind") <= k:
+                self._spawn_on_route(ego_s + d, "behind")
+        for k, d in enumerate(BUBBLE_ONCOMING):
+            if roles.count("oncoming") <= k:
+                self._spawn_oncoming(ego_s + d)

@@ -110,12 +110,16 @@ class World:
         libsumo.vehicle.subscribeContext(EGO, libsumo.constants.CMD_GET_PERSON_VARIABLE, CONTEXT_RADIUS,
                                          [_POS, _ANGLE, _SPEED, _ROAD])
 
-    def move_ego(self, s: EgoState) -> None:
-        """Place the ego (centre pose s) for the next step; SUMO wants the front bumper."""
+    def move_ego(self, s: EgoState, edge: str = "", lane: int = -1) -> None:
+        """Place the ego (centre pose s) for the next step; SUMO wants the front bumper.
+
+        edge, lane: the route's edge and lane at the ego, as SUMO's placement hint, so that
+        an ego near the centre line is not mapped onto the opposite lane (where oncoming
+        SUMO traffic would stop in front of it for good)."""
         fx = s.x + math.cos(s.yaw) * LENGTH / 2
         fy = s.y + math.sin(s.yaw) * LENGTH / 2
         try:
-            libsumo.vehicle.moveToXY(EGO, "", -1, fx, fy, sumo_angle(s.yaw), keepRoute=2)
+            libsumo.vehicle.moveToXY(EGO, edge, lane, fx, fy, sumo_angle(s.yaw), keepRoute=2)
         except libsumo.TraCIException:
             # SUMO dropped the ego: it teleported it out of a jam, or the ego ran off the end
             # of the one-edge route SUMO gives a vehicle moved off its route. Put it back.

@@ -95,7 +95,7 @@ BUILTIN_AGENTS = {
     "route_follower": "harness.route_follower:RouteFollower",
     "expert": "harness.expert:Expert",
 }
-DEFAULT_AGENT = "route_follower"  # the best agent that exists until the expert ships
+DEFAULT_AGENT = "expert"  # the best agent that exists until a student ships
 
 
 def resolve_agent(name: str) -> str:

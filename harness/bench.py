@@ -62,9 +62,9 @@ def run_bench(routes_name: str = "town12_smoke", n_routes: int = 4, bev_frames: 
     for k, route in enumerate(routes):
         seed = route_seed(0, k)
 
-        def keep(tick, ego, snap, plan, pred, lights, props, _k=k):
-            if tick % 50 == 0:
-                snaps.append((ego, snap, plan, lights, props))
+        def keep(f):
+            if f.tick % 50 == 0:
+                snaps.append((f.ego, f.snap, f.plan, f.lights, f.props))
 
         res = run_episode(route, "route_follower", None, seed, on_frame=keep)
         # the frame callback costs a list append every 50th tick: negligible

@@ -212,6 +212,42 @@ def _report(args: argparse.Namespace) -> int:
     return 0
 
 
+def _collect(args: argparse.Namespace) -> int:
+    from harness.dataset import build_index, describe
+    from harness.runner import Job, route_seed, run_eval
+    from scenarios import resolve_set
+    from scenarios.check import check_file
+    from scenarios.routefile import read_routes
+    path = resolve_set(args.routes).resolve()
+    _, problems = check_file(path)
+    if problems:
+        raise BadInput(f"{path}: {problems[0]} (run 'sumo-scimm routes check {path}')")
+    if args.workers < 1 or args.repetitions < 1:
+        raise BadInput("--workers and --repetitions must be >= 1")
+    out = Path(args.out)
+    if not args.resume and (out / "records.jsonl").exists() and (out / "records.jsonl").stat().st_size:
+        raise BadInput(f"{out} already holds a collection: add --resume to finish it, or choose another --out")
+    (out / "episodes").mkdir(parents=True, exist_ok=True)
+    _, routes = read_routes(path)
+    jobs = [Job(k, r, rep, "expert", None, route_seed(args.seed, k), str(out / "logs"),
+                collect_dir=str(out / "episodes"), route_file=str(path))
+            for k, (rep, r) in enumerate((rep, r) for rep in range(args.repetitions) for r in routes)]
+    run_eval(jobs, out, args.workers, args.resume, sensors=["pose", "speed", "world"])
+    print(describe(build_index(out)))
+    return 0
+
+
+def _data_show(args: argparse.Namespace) -> int:
+    import pandas as pd
+    from harness.dataset import build_index, describe
+    folder = Path(args.dir)
+    if not (folder / "episodes").is_dir():
+        raise BadInput(f"{folder} is not a dataset folder (no episodes/; make one with 'sumo-scimm collect')")
+    index = pd.read_csv(folder / "index.csv") if (folder / "index.csv").is_file() else build_index(folder)
+    print(describe(index))
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = _Parser(prog="sumo-scimm", description="Closed-loop driving benchmark on SUMO with "
                 "Leaderboard 2.0 scoring and SC-IMM teacher signals.")
@@ -277,6 +313,21 @@ def build_parser() -> argparse.ArgumentParser:
     rp.add_argument("runs", nargs="+", help="run folders of 'sumo-scimm eval'; the first is the baseline")
     rp.add_argument("--out", default="report", help="folder for table3/table4 .csv and .md (default report)")
     rp.set_defaults(func=_report)
+
+    co = sub.add_parser("collect", help="drive the expert over a route set and record a dataset at 4 Hz")
+    co.add_argument("--routes", required=True, help="route set name or route file (e.g. train)")
+    co.add_argument("--out", required=True, help="dataset folder")
+    co.add_argument("--workers", type=int, default=os.cpu_count() or 1, help="worker processes (default: cores)")
+    co.add_argument("--repetitions", type=int, default=1, help="runs per route, each with its own seed (default 1)")
+    co.add_argument("--seed", type=int, default=0, help="run seed (default 0)")
+    co.add_argument("--resume", action="store_true", help="finish an interrupted collection")
+    co.set_defaults(func=_collect)
+
+    da = sub.add_parser("data", help="describe a dataset")
+    dsub = da.add_subparsers(dest="action", required=True, parser_class=_Parser)
+    dshow = dsub.add_parser("show", help="frames, hours, share of frames per situation, per town")
+    dshow.add_argument("dir")
+    dshow.set_defaults(func=_data_show)
 
     bn = sub.add_parser("bench", help="performance figures beside their references (SPEC §11)")
     bn.add_argument("--routes", default="town12_smoke", help="route set to time (default town12_smoke)")

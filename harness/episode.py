@@ -53,6 +53,21 @@ class EpisodeLog:
         return out
 
 
+@dataclass(frozen=True)
+class Frame:
+    """What ``on_frame`` sees after a tick (read-only: it must not change the simulation)."""
+
+    tick: int
+    ego: EgoState
+    snap: Snapshot
+    plan: GlobalPlan
+    pred: Prediction | None
+    lights: list[int]  # state code (TLS_CODES index) of each route light
+    props: list  # harness-only static boxes (x, y, yaw, length, width)
+    control: Control
+    agent: object  # the agent instance (the collector reads the expert's own state)
+
+
 @dataclass
 class EpisodeResult:
     status: str
@@ -91,8 +106,8 @@ def run_episode(route: Route, agent_name: str, agent_config: str | None, seed: i
                 on_frame=None) -> EpisodeResult:
     """Drive one route with an agent; ``seed`` fixes traffic, hazards, noise and SUMO.
 
-    ``on_frame(tick, ego, snapshot, plan, prediction, lights)`` is called after every
-    tick (rendering); it must not change the simulation.
+    ``on_frame(frame)`` is called with a :class:`Frame` after every tick (rendering,
+    recording); it must not change the simulation.
     """
     from harness.bev import BevRenderer  # the renderer pulls OpenCV; keep import local
 
@@ -145,10 +160,10 @@ def run_episode(route: Route, agent_name: str, agent_config: str | None, seed: i
         props = [p for h in hazards for p in h.props]
         end = None
         loop0 = wallclock.perf_counter()
+        lights_now = [_light_state(p) for p in lights]
         while end is None:
             s = ego.state
             progress = done.progress.index
-            lights_now = [_light_state(p) for p in lights]
             try:
                 out = agent.run_step(_inputs(specs, s, plan, progress, snap, (snap, lights_now, props),
                                              lambda: bev.render(s, snap, plan, lights_now, props)), world.time)
@@ -167,6 +182,7 @@ def run_episode(route: Route, agent_name: str, agent_config: str | None, seed: i
             bubble.update(ego_s, (s.x, s.y), world.time)
             world.step()
             snap = world.snapshot()
+            lights_now = [_light_state(p) for p in lights]  # the state the next tick sees
             tick += 1
             end = (done.update(s.x, s.y) or in_route.update(s.x, s.y)
                    or blocked.update(s.v, world.time, paused=any(h.timeout_active(ego_s, world.time)
@@ -174,7 +190,7 @@ def run_episode(route: Route, agent_name: str, agent_config: str | None, seed: i
                    or timeout.update(s.x, s.y, world.time))
             _log_tick(log, tick, world.time, s, control, pred, done, snap, lights_now, props)
             if on_frame is not None:
-                on_frame(tick, s, snap, plan, pred, lights_now, props)
+                on_frame(Frame(tick, s, snap, plan, pred, lights_now, props, control, agent))
         loop_time = wallclock.perf_counter() - loop0
         if end is not None:
             status = end

@@ -27,12 +27,13 @@ def render_route(route: Route, agent: str, agent_config: str | None, seed: int, 
     path_xy = []
     state = {}
 
-    def on_frame(tick, ego, snap, plan, pred, lights, props):
+    def on_frame(f):
+        tick, ego, pred = f.tick, f.ego, f.pred
         path_xy.append((ego.x, ego.y))
-        state["plan"] = plan
+        state["plan"] = f.plan
         if tick % every:
             return
-        img = colorize(bev.render(ego, snap, plan, lights, props), SCALE)
+        img = colorize(bev.render(ego, f.snap, f.plan, f.lights, f.props), SCALE)
         if pred is not None:
             for pts, col in ((pred.path, (0, 255, 0)), (pred.speed_wps, (255, 0, 255))):
                 if pts is not None:

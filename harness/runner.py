@@ -50,6 +50,8 @@ class Job:
     seed: int
     log_dir: str
     rules: str = "lb2.0"
+    collect_dir: str = ""  # if set, the episode is recorded there at 4 Hz (harness.collect)
+    route_file: str = ""
 
     @property
     def key(self) -> str:
@@ -88,7 +90,12 @@ def run_job(job: Job) -> dict:
     from harness.infractions import detect
     from harness.stability import stability
     from sumo_nets import load_net
-    res = run_episode(job.route, job.agent, job.agent_config, job.seed)
+    recorder = None
+    if job.collect_dir:
+        from harness.collect import Recorder
+        recorder = Recorder()
+    res = run_episode(job.route, job.agent, job.agent_config, job.seed,
+                      on_frame=recorder.on_frame if recorder else None)
     arrays = res.log.arrays()
     log_path = Path(job.log_dir) / f"{job.key}.npz"
     tmp = log_path.with_name(log_path.name + ".tmp.npz")
@@ -98,8 +105,13 @@ def run_job(job: Job) -> dict:
         infractions = detect(arrays, res.plan, job.route, load_net(job.route.town), res.status, job.rules)
     else:
         infractions = {k: [] for k in KEYS}
-    return make_record(job, res.status, res.rc, res.length, res.game_time, res.wall_time, res.steps,
-                       res.message, infractions, stability(arrays), job.rules)
+    record = make_record(job, res.status, res.rc, res.length, res.game_time, res.wall_time, res.steps,
+                         res.message, infractions, stability(arrays), job.rules)
+    if recorder is not None:
+        from harness.collect import save_episode
+        save_episode(Path(job.collect_dir) / f"{job.key}.npz", recorder.arrays(), job.route_file,
+                     job.route.id, job.route.town, record)
+    return record
 
 
 def _crash_record(job: Job, reason: str) -> dict:
@@ -112,7 +124,11 @@ def _worker(conn) -> None:
         job = conn.recv()
         if job is None:
             return
-        conn.send(run_job(job))
+        try:
+            rec = run_job(job)
+        except Exception as exc:  # noqa: BLE001 - a harness bug fails this route, not the run
+            rec = _crash_record(job, f"{type(exc).__name__}: {exc}")
+        conn.send(rec)
 
 
 def read_records(path: Path) -> list[dict]:

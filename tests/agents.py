@@ -7,6 +7,7 @@ import signal
 from controller.vehicle import Control
 from harness.route_follower import RouteFollower
 from harness.agent import AutonomousAgent
+from harness.expert import Expert
 
 
 class SteerRight(AutonomousAgent):
@@ -80,3 +81,17 @@ class StopSignStopper(RouteFollower):
                     self.waited[p.junction] = self.waited.get(p.junction, 0.0) + 0.05
                 return Control(steer=control.steer, brake=1.0)
         return control
+
+
+class BevExpert(Expert):
+    """The expert, also asking for the BEV and keeping every BEV it was given, by game time
+    (ms) and ego pose."""
+
+    seen: dict = {}
+
+    def sensors(self):
+        return super().sensors() + [{"type": "bev", "id": "bev"}]
+
+    def run_step(self, input_data, timestamp):
+        BevExpert.seen[(round(timestamp * 1000), *input_data["pose"])] = input_data["bev"].copy()
+        return super().run_step(input_data, timestamp)

@@ -80,11 +80,11 @@ def test_pedestrian_crossing_in_front_is_seen_in_the_bev():
     renderer = B.BevRenderer.for_town("town12")
     seen = []
 
-    def on_frame(tick, ego, snap, plan, pred, lights, props):
-        ahead = [k for k, i in enumerate(snap.ids) if i.startswith("ped_hz")]
+    def on_frame(f):
+        ahead = [k for k, i in enumerate(f.snap.ids) if i.startswith("ped_hz")]
         if not ahead:
             return
-        bev = renderer.render(ego, snap, plan, lights, props)
+        bev = renderer.render(f.ego, f.snap, f.plan, f.lights, f.props)
         # walker pixels in a corridor ahead of the ego (+-6 m wide, 2..30 m ahead)
         corridor = bev[B.WALKERS, B.EGO_ROW - 40:B.EGO_ROW - 3, 24:41]
         seen.append(int((corridor > 0).sum()))

@@ -1,0 +1,125 @@
+"""Reading what ``sumo-scimm collect`` wrote: the frame index, episodes, and the BEV of a
+stored frame rendered with the closed-loop renderer (so training sees exactly what the
+agent sees in closed loop), with optional shift/rotation augmentation.
+
+Augmentation moves the ego's viewpoint by ``shift`` metres to its left and turns it by
+``rot`` radians (counter-clockwise); the BEV is rendered at that pose and every label
+(path, speed waypoints, target point) is expressed in the moved ego frame:
+p' = R(-rot) (p - (0, shift)).
+"""
+from __future__ import annotations
+
+import math
+from functools import lru_cache
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from controller.vehicle import EgoState
+from harness.bev import BevRenderer
+from harness.plan import GlobalPlan, build_plan
+from harness.world import Snapshot
+from scenarios.routefile import read_routes
+from sumo_nets import load_net
+
+SITUATIONS = ("junction_turn", "stopping", "bypass", "cruise")
+
+
+@lru_cache(maxsize=64)
+def _plans(route_file: str) -> dict[str, GlobalPlan]:
+    _, routes = read_routes(Path(route_file))
+    return {r.id: build_plan(r, load_net(r.town)) for r in routes}
+
+
+class Episode:
+    """One recorded route run (arrays as written by harness.collect)."""
+
+    def __init__(self, path: Path):
+        with np.load(path, allow_pickle=False) as z:
+            self.a = {k: z[k] for k in z.files}
+        self.path = Path(path)
+        self.town = str(self.a["town"])
+        self.plan = _plans(str(self.a["route_file"]))[str(self.a["route_id"])]
+
+    def __len__(self) -> int:
+        return len(self.a["t"])
+
+    def scene(self, k: int) -> tuple[EgoState, Snapshot, list[int], list]:
+        a = self.a
+        lo, hi = int(a["actor_offset"][k]), int(a["actor_offset"][k + 1])
+        snap = Snapshot([""] * (hi - lo), a["actor_xy"][lo:hi], a["actor_yaw"][lo:hi], a["actor_speed"][lo:hi],
+                        a["actor_size"][lo:hi], a["actor_cls"][lo:hi].astype(int), math.nan)
+        props = [tuple(p) for p in a["props"][k] if np.isfinite(p).all()] if a["props"].size else []
+        ego = EgoState(float(a["x"][k]), float(a["y"][k]), float(a["yaw"][k]), float(a["v"][k]))
+        return ego, snap, [int(v) for v in a["lights"][k]], props
+
+    def bev(self, k: int, shift: float = 0.0, rot: float = 0.0) -> np.ndarray:
+        """(9, 64, 64) uint8 BEV of frame k, seen from the ego moved by (shift [m] left, rot [rad])."""
+        ego, snap, lights, props = self.scene(k)
+        if shift or rot:
+            ego = EgoState(ego.x - math.sin(ego.yaw) * shift, ego.y + math.cos(ego.yaw) * shift,
+                           ego.yaw + rot, ego.v)
+        return BevRenderer.for_town(self.town).render(ego, snap, self.plan, lights, props)
+
+    def labels(self, k: int, shift: float = 0.0, rot: float = 0.0) -> dict[str, np.ndarray]:
+        """Path (20, 2), speed waypoints (10, 2), target point (2,) in the (moved) ego frame."""
+        c, s = math.cos(rot), math.sin(rot)
+
+        def move(p):
+            q = np.asarray(p, dtype=float) - (0.0, shift)
+            return np.stack([c * q[..., 0] + s * q[..., 1], -s * q[..., 0] + c * q[..., 1]], -1)
+        a = self.a
+        return {"path": move(a["path"][k]), "speed_wps": move(a["speed_wps"][k]),
+                "target_point": move(a["target_point"][k])}
+
+
+def situation(row: pd.Series) -> str:
+    """The frame's situation for ``data show`` (first that applies):
+    junction_turn (in a junction with a left/right command), stopping (the expert's target
+    is below 0.5 m/s, or 1 m/s below its speed), bypass (its path is shifted sideways),
+    cruise."""
+    if row["cue_junction"] > 0 and row["command"] in (1, 2):
+        return "junction_turn"
+    if row["target_speed"] < 0.5 or row["target_speed"] < row["v"] - 1.0:
+        return "stopping"
+    if row["cue_changed_route"] > 0:
+        return "bypass"
+    return "cruise"
+
+
+INDEX_COLUMNS = ("t", "x", "y", "v", "command", "next_command", "target_speed", "cue_junction",
+                 "cue_changed_route", "flag_vehicle", "flag_walker", "flag_light", "flag_stop")
+
+
+def build_index(folder: Path) -> pd.DataFrame:
+    """One row per frame of every episode in ``folder/episodes``; written to index.csv."""
+    rows = []
+    for ep in sorted((folder / "episodes").glob("*.npz")):
+        with np.load(ep, allow_pickle=False) as z:
+            n = len(z["t"])
+            df = pd.DataFrame({c: z[c] for c in INDEX_COLUMNS})
+            df.insert(0, "frame", np.arange(n))
+            df.insert(0, "town", str(z["town"]))
+            df.insert(0, "route_id", str(z["route_id"]))
+            df.insert(0, "episode", ep.stem)
+        rows.append(df)
+    index = pd.concat(rows, ignore_index=True) if rows else pd.DataFrame(columns=["episode", "route_id", "town",
+                                                                                   "frame", *INDEX_COLUMNS])
+    if len(index):
+        index["situation"] = index.apply(situation, axis=1)
+    tmp = folder / "index.csv.tmp"
+    index.to_csv(tmp, index=False)
+    tmp.replace(folder / "index.csv")
+    return index
+
+
+def describe(index: pd.DataFrame) -> str:
+    """``data show``: frames, hours driven, share of frames per situation, per town."""
+    lines = [f"{'town':8} {'frames':>8} {'hours':>6}  " + "  ".join(f"{s:>13}" for s in SITUATIONS)]
+    groups = [(t, g) for t, g in index.groupby("town")] + [("all", index)]
+    for town, g in groups:
+        share = g["situation"].value_counts(normalize=True) if len(g) else {}
+        lines.append(f"{town:8} {len(g):8d} {len(g) / 4 / 3600:6.2f}  "
+                     + "  ".join(f"{100 * share.get(s, 0.0):12.1f}%" for s in SITUATIONS))
+    return "\n".join(lines)

@@ -1,0 +1,85 @@
+"""`collect` and the dataset loader: what is stored renders the closed-loop BEV bit for
+bit, labels follow augmentation, the index reads with pandas."""
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from harness import bev as B
+from harness.cli import main
+from harness.dataset import Episode
+from harness.runner import Job, run_job
+from scenarios import set_path
+from scenarios.routefile import read_routes
+from tests.agents import BevExpert
+
+SMOKE = read_routes(set_path("town12_smoke"))[1]
+
+
+@pytest.fixture(scope="module")
+def episode(tmp_path_factory):
+    tmp = tmp_path_factory.mktemp("collect")
+    (tmp / "logs").mkdir()
+    (tmp / "ep").mkdir()
+    BevExpert.seen.clear()
+    job = Job(0, SMOKE[2], 0, "tests.agents:BevExpert", None, 5, str(tmp / "logs"),
+              collect_dir=str(tmp / "ep"), route_file=str(set_path("town12_smoke")))
+    record = run_job(job)
+    assert record["episode_status"] == "Completed"
+    return Episode(tmp / "ep" / "2_rep0.npz")
+
+
+def test_a_stored_frame_renders_the_closed_loop_bev_bit_for_bit(episode):
+    matched = 0
+    for k in range(len(episode)):
+        # frame k holds the state after tick k: the agent sees it at the next tick, 0.05 s later
+        key = (round((episode.a["t"][k] + 0.05) * 1000), episode.a["x"][k], episode.a["y"][k], episode.a["yaw"][k])
+        seen = BevExpert.seen.get(key)
+        if seen is not None:
+            np.testing.assert_array_equal(episode.bev(k), seen, err_msg=f"frame {k}")
+            matched += 1
+    assert matched == len(episode) and matched > 50
+
+
+def test_labels_have_the_documented_shapes_and_meaning(episode):
+    a = episode.a
+    assert a["path"].shape[1:] == (20, 2) and a["speed_wps"].shape[1:] == (10, 2)
+    # path points lie 1 m apart along the path, starting at the ego
+    steps = np.hypot(*np.diff(a["path"], axis=1).transpose(2, 0, 1))
+    np.testing.assert_allclose(a["path"][:, 0], 0.0, atol=1e-9)
+    assert np.all(steps <= 1.0 + 1e-6) and np.median(steps) == pytest.approx(1.0, abs=0.01)
+    # speed waypoint k is where the ego is 0.25 (k + 1) s later: the distance to the first one
+    # is close to 0.25 s x speed (the ego accelerates or brakes a little within 0.25 s)
+    d0 = np.hypot(*a["speed_wps"][:, 0].T)
+    assert np.median(np.abs(d0 - 0.25 * a["v"])) < 0.1
+
+
+def test_augmentation_moves_image_and_labels_together(episode):
+    k = len(episode) // 3
+    shift = 1.5  # the viewpoint moves 1.5 m to the left: everything appears 2 px to the right
+    plain, moved = episode.bev(k), episode.bev(k, shift=shift)
+    rows = slice(B.EGO_ROW - 10, B.EGO_ROW)
+    col = lambda img: np.average(np.arange(B.SIZE), weights=img[B.ROUTE, rows].sum(axis=0))  # noqa: E731
+    assert col(moved) - col(plain) == pytest.approx(shift / B.RES, abs=0.5)
+    lp, lm = episode.labels(k), episode.labels(k, shift=shift)
+    np.testing.assert_allclose(lm["path"], lp["path"] - (0.0, shift))
+    rot = 0.1
+    lr = episode.labels(k, rot=rot)
+    c, s = np.cos(rot), np.sin(rot)
+    back = np.stack([c * lr["path"][:, 0] - s * lr["path"][:, 1], s * lr["path"][:, 0] + c * lr["path"][:, 1]], 1)
+    np.testing.assert_allclose(back, lp["path"], atol=1e-12)
+
+
+def test_collect_writes_an_index_and_data_show_reports(tmp_path, capsys):
+    out = tmp_path / "data"
+    assert main(["collect", "--routes", "town12_smoke", "--out", str(out), "--workers", "2"]) == 0
+    index = pd.read_csv(out / "index.csv")
+    n = sum(len(np.load(p)["t"]) for p in (out / "episodes").glob("*.npz"))
+    assert len(index) == n > 300
+    assert set(index["situation"]) <= {"junction_turn", "stopping", "bypass", "cruise"}
+    assert {"junction_turn", "stopping", "cruise"} <= set(index["situation"])
+    capsys.readouterr()
+    assert main(["data", "show", str(out)]) == 0
+    shown = capsys.readouterr().out
+    assert "town12" in shown and "junction_turn" in shown

@@ -132,7 +132,7 @@ def run_episode(route: Route, agent_name: str, agent_config: str | None, seed: i
         traffic = BackgroundTraffic(net, plan, rng_traffic)
         traffic.populate()
         quiet = tuple((h.site_s - 100.0, h.site_s + 150.0) for h in hazards if h.h.type == "ParkedObstacle")
-        bubble = RouteBubble(net, plan, rng_traffic, quiet)
+        bubble = RouteBubble(net, plan, quiet)
         world.move_ego(ego.state)
         world.step()
         snap = world.snapshot()

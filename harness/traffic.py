@@ -117,12 +117,11 @@ class RouteBubble:
     cannot insert at once (no space) is dropped.
     """
 
-    def __init__(self, net: sumolib.net.Net, plan: GlobalPlan, rng: np.random.Generator,
-                 quiet: tuple[tuple[float, float], ...] = ()):
+    def __init__(self, net: sumolib.net.Net, plan: GlobalPlan, quiet: tuple[tuple[float, float], ...] = ()):
         """quiet: route intervals [m] where no bubble vehicle is spawned (around obstacles,
         whose bypass needs a gap in the oncoming lane, as the Leaderboard's scenarios ask
         their BackgroundActivity for)."""
-        self.net, self.plan, self.rng, self.quiet = net, plan, rng, quiet
+        self.net, self.plan, self.quiet = net, plan, quiet  # deterministic: no draws
         self.members: dict[str, str] = {}  # id -> role (ahead, behind, oncoming)
         self.count = 0
         self.next_time = 0.0

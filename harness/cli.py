@@ -174,6 +174,9 @@ def _bench(args: argparse.Namespace) -> int:
         raise BadInput("--routes-count must be >= 1")
     r = run_bench(args.routes, args.routes_count)
     print(format_bench(r))
+    from scimm.bench import format_imm_bench, run_imm_bench  # the CLI is the one place that sees every stage
+    r["teacher"] = run_imm_bench()
+    print(format_imm_bench(r["teacher"]))
     if args.json:
         Path(args.json).write_text(bench_json(r) + "\n")
     return 0

@@ -1,0 +1,191 @@
+"""The batched IMM (scimm.imm) against exact reductions and filterpy's IMMEstimator
+(notes imm.md §2.5 items 1-7, 9, 10)."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from filterpy.kalman import IMMEstimator, KalmanFilter
+
+from scimm.imm import imm_filter
+from scimm.scene import conditioned
+
+N, M, T = 5, 5, 60
+
+
+def random_system(rng, m=M, n=N):
+    F = np.eye(n) + 0.1 * rng.normal(size=(m, n, n))
+    Q = np.stack([a @ a.T + 0.05 * np.eye(n) for a in 0.3 * rng.normal(size=(m, n, n))])
+    R = (lambda a: a @ a.T + 0.2 * np.eye(n))(0.3 * rng.normal(size=(n, n)))
+    Pi = rng.uniform(0.05, 1.0, size=(m, m)) + 3.0 * np.eye(m)
+    Pi /= Pi.sum(axis=1, keepdims=True)  # non-symmetric, rows sum to 1
+    mu0 = rng.uniform(0.2, 1.0, size=m)
+    mu0 /= mu0.sum()
+    P0 = np.stack([np.eye(n) * rng.uniform(0.5, 2.0) for _ in range(m)])
+    return F, Q, R, Pi, mu0, P0
+
+
+def simulate(rng, F, Q, R, Pi, B=3, T=T):
+    n = F.shape[1]
+    z = np.empty((B, T, n))
+    for b in range(B):
+        x, mode = rng.normal(size=n), 0
+        for t in range(T):
+            mode = rng.choice(len(Pi), p=Pi[mode])
+            x = F[mode] @ x + rng.multivariate_normal(np.zeros(n), Q[mode])
+            z[b, t] = x + rng.multivariate_normal(np.zeros(n), R)
+    return z
+
+
+def filterpy_imm(z, F, Q, R, x0, P0, Pi, mu0):
+    filters = []
+    for j in range(len(F)):
+        kf = KalmanFilter(dim_x=F.shape[1], dim_z=F.shape[1])
+        kf.F, kf.Q, kf.R, kf.H = F[j], Q[j], R, np.eye(F.shape[1])
+        kf.x, kf.P = x0[j].copy(), P0[j].copy()
+        filters.append(kf)
+    imm = IMMEstimator(filters, mu0.copy(), Pi)  # filterpy's code: M[i, j] = P(i -> j), as ours
+    xs, mus = [], []
+    for zt in z:
+        imm.predict()
+        imm.update(zt)
+        xs.append(np.ravel(imm.x).copy())
+        mus.append(np.ravel(imm.mu).copy())
+    return np.array(xs), np.array(mus)
+
+
+def test_posterior_equals_filterpy_on_random_5_mode_systems():
+    rng = np.random.default_rng(0)
+    for trial in range(3):
+        F, Q, R, Pi, mu0, P0 = random_system(rng)
+        z = simulate(rng, F, Q, R, Pi, B=2)
+        x0 = rng.normal(size=(2, M, N))
+        res = imm_filter(z, F, Q, R, x0, P0, Pi, mu0)
+        for b in range(2):
+            fx, fmu = filterpy_imm(z[b], F, Q, R, x0[b], P0, Pi, mu0)
+            np.testing.assert_allclose(res.x[b], fx, atol=1e-9, rtol=0)
+            np.testing.assert_allclose(res.mu[b], fmu, atol=1e-9, rtol=0)
+
+
+def test_one_mode_is_a_kalman_filter():
+    rng = np.random.default_rng(1)
+    F, Q, R, _, _, P0 = random_system(rng, m=1)
+    z = simulate(rng, F, Q, R, np.ones((1, 1)), B=1)
+    x0 = rng.normal(size=(1, 1, N))
+    res = imm_filter(z, F, Q, R, x0, P0, np.ones((1, 1)), np.ones(1))
+    kf = KalmanFilter(dim_x=N, dim_z=N)
+    kf.F, kf.Q, kf.R, kf.H, kf.x, kf.P = F[0], Q[0], R, np.eye(N), x0[0, 0].copy(), P0[0].copy()
+    for t in range(T):
+        kf.predict()
+        kf.update(z[0, t])
+        np.testing.assert_allclose(res.x[0, t], np.ravel(kf.x), atol=1e-12)
+        np.testing.assert_allclose(res.P[0, t], kf.P, atol=1e-12)
+        assert res.loglik[0, t] == pytest.approx(kf.log_likelihood, abs=1e-9)
+    np.testing.assert_array_equal(res.mu, 1.0)
+
+
+def test_identity_pi_is_a_bank_of_independent_kalman_filters():
+    rng = np.random.default_rng(2)
+    F, Q, R, Pi, mu0, P0 = random_system(rng, m=3)
+    z = simulate(rng, F, Q, R, Pi, B=1)
+    x0 = rng.normal(size=(1, 3, N))
+    res = imm_filter(z, F, Q, R, x0, P0, np.eye(3), mu0)
+    log_w = np.log(mu0).copy()
+    for j in range(3):
+        kf = KalmanFilter(dim_x=N, dim_z=N)
+        kf.F, kf.Q, kf.R, kf.H, kf.x, kf.P = F[j], Q[j], R, np.eye(N), x0[0, j].copy(), P0[j].copy()
+        for t in range(T):
+            kf.predict()
+            kf.update(z[0, t])
+            np.testing.assert_allclose(res.x_modes[0, t, j], np.ravel(kf.x), atol=1e-10)
+            log_w[j] += kf.log_likelihood
+    # mu_T is proportional to mu0 times the product of each mode's likelihoods
+    expected = np.exp(log_w - np.logaddexp.reduce(log_w))
+    np.testing.assert_allclose(res.mu[0, -1], expected, atol=1e-9)
+
+
+def test_identical_modes_give_mu0_times_powers_of_pi():
+    rng = np.random.default_rng(3)
+    F, Q, R, Pi, mu0, P0 = random_system(rng)
+    F[:], Q[:], P0[:] = F[0], Q[0], P0[0]
+    z = simulate(rng, F, Q, R, Pi, B=1, T=20)
+    x0 = np.broadcast_to(rng.normal(size=N), (1, M, N)).copy()
+    res = imm_filter(z, F, Q, R, x0, P0, Pi, mu0)
+    mu = mu0.copy()
+    for t in range(20):
+        mu = mu @ Pi  # every frame mixes first, frame 0 included
+        np.testing.assert_allclose(res.mu[0, t], mu, atol=1e-12)
+        np.testing.assert_allclose(res.x_modes[0, t], np.broadcast_to(res.x[0, t], (M, N)), atol=1e-10)
+
+
+def test_simplex_psd_and_extreme_innovations_stay_finite():
+    rng = np.random.default_rng(4)
+    F, Q, R, Pi, mu0, P0 = random_system(rng)
+    z = simulate(rng, F, Q, R, Pi, B=2, T=200)
+    z[1, 100] = 1e8  # an absurd measurement: likelihoods about -1e16 in log space
+    res = imm_filter(z, F, Q, R, rng.normal(size=(2, M, N)), P0, Pi, mu0)
+    assert np.isfinite(res.x).all() and np.isfinite(res.mu).all() and np.isfinite(res.loglik).all()
+    assert (res.mu >= 0).all()
+    np.testing.assert_allclose(res.mu.sum(axis=-1), 1.0, atol=1e-12)
+    np.testing.assert_allclose(res.P, np.swapaxes(res.P, -1, -2), atol=0)
+    eig = np.linalg.eigvalsh(res.P)
+    assert (eig > -1e-10 * np.trace(res.P, axis1=-2, axis2=-1)[..., None]).all()
+    assert np.isclose(res.mu[1, 100].max(), 1.0)  # one mode takes it all
+
+
+def test_missing_measurement_predicts_only():
+    rng = np.random.default_rng(5)
+    F, Q, R, Pi, mu0, P0 = random_system(rng)
+    z = simulate(rng, F, Q, R, Pi, B=1, T=5)
+    z[0, 3] = np.nan
+    x0 = rng.normal(size=(1, M, N))
+    full = imm_filter(z[:, :3], F, Q, R, x0, P0, Pi, mu0)
+    res = imm_filter(z, F, Q, R, x0, P0, Pi, mu0)
+    np.testing.assert_allclose(res.mu[0, 3], full.mu[0, 2] @ Pi, atol=1e-12)  # mu = cbar
+    assert res.loglik[0, 3] == 0.0
+
+
+def test_batched_equals_one_sequence_at_a_time():
+    rng = np.random.default_rng(6)
+    F, Q, R, Pi, mu0, P0 = random_system(rng)
+    z = simulate(rng, F, Q, R, Pi, B=4, T=30)
+    x0 = rng.normal(size=(4, M, N))
+    res = imm_filter(z, F, Q, R, x0, P0, Pi, mu0)
+    for b in range(4):
+        one = imm_filter(z[b:b + 1], F, Q, R, x0[b:b + 1], P0, Pi, mu0)
+        np.testing.assert_allclose(one.x[0], res.x[b], atol=1e-12)
+        np.testing.assert_allclose(one.mu[0], res.mu[b], atol=1e-12)
+
+
+def test_scene_conditioning_reductions():
+    rng = np.random.default_rng(7)
+    F, Q, R, Pi, mu0, P0 = random_system(rng)
+    B, Tn = 2, 25
+    z = simulate(rng, F, Q, R, Pi, B=B, T=Tn)
+    x0 = rng.normal(size=(B, M, N))
+    base = imm_filter(z, F, Q, R, x0, P0, Pi, mu0)
+    Pi_t, Q_t = conditioned(Pi, Q, np.zeros((B, Tn, M, M)), np.ones((B, Tn, M)))  # A = 0, gamma = 1
+    same = imm_filter(z, F, Q_t, R, x0, P0, Pi_t, mu0)
+    np.testing.assert_allclose(same.x, base.x, atol=1e-12)
+    np.testing.assert_allclose(same.mu, base.mu, atol=1e-12)
+    A = rng.normal(size=(B, Tn, M, M))
+    shifted = A + rng.normal(size=(B, Tn, M, 1))  # a row-constant offset changes nothing
+    Pa, _ = conditioned(Pi, Q, A, np.ones((B, Tn, M)))
+    Pb, _ = conditioned(Pi, Q, shifted, np.ones((B, Tn, M)))
+    np.testing.assert_allclose(Pa, Pb, atol=1e-12)
+    np.testing.assert_allclose(Pa.sum(axis=-1), 1.0, atol=1e-12)
+    Pz = Pi.copy()
+    Pz[0, 1] = 0.0
+    Pz[0] /= Pz[0].sum()
+    Pc, _ = conditioned(Pz, Q, A, np.ones((B, Tn, M)))
+    assert (Pc[..., 0, 1] == 0.0).all()  # structural zeros stay zero
+
+
+def test_bad_shapes_and_pi_orientation_are_refused():
+    rng = np.random.default_rng(8)
+    F, Q, R, Pi, mu0, P0 = random_system(rng)
+    z = np.zeros((1, 3, N))
+    x0 = np.zeros((1, M, N))
+    with pytest.raises(ValueError, match="rows must be probabilities"):
+        imm_filter(z, F, Q, R, x0, P0, Pi.T, mu0)  # columns of a non-symmetric Pi do not sum to 1
+    with pytest.raises(ValueError, match="F must be"):
+        imm_filter(z, F[:, :4], Q, R, x0, P0, Pi, mu0)

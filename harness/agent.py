@@ -15,7 +15,7 @@ Sensors an agent may declare (``{"type": ..., "id": ...}``):
 | ``command`` | RoadOption of the route at the ego (1 left, 2 right, 3 straight, 4 follow lane) |
 | ``bev`` | ego-centred BEV raster, uint8 (C, H, W) (harness.bev) |
 | ``world`` | privileged, for the expert: ``(snapshot, lights, props)``: every actor within |
-|  | 50 m (harness.world.Snapshot), the state of each route light (harness.episode.TLS_CODES |
+|  | 50 m (harness.world.Snapshot), the state of each route light (harness.world.TLS_CODES |
 |  | index, in the order of the plan's light passages), harness-only static boxes |
 
 ``run_step`` returns a :class:`Control`, or ``(Control, Prediction)`` to report the

@@ -28,7 +28,6 @@ from harness.world import STATIC, Snapshot, World
 from scenarios.routefile import Route
 from sumo_nets import load_net
 
-TLS_CODES = "rRyYgGsuoO"  # SUMO link states; logged as their index, -1 when not applicable
 
 
 @dataclass
@@ -62,7 +61,7 @@ class Frame:
     snap: Snapshot
     plan: GlobalPlan
     pred: Prediction | None
-    lights: list[int]  # state code (TLS_CODES index) of each route light
+    lights: list[int]  # state of each route light (index into harness.world.TLS_CODES)
     props: list  # harness-only static boxes (x, y, yaw, length, width)
     control: Control
     agent: object  # the agent instance (the collector reads the expert's own state)
@@ -160,7 +159,7 @@ def run_episode(route: Route, agent_name: str, agent_config: str | None, seed: i
         props = [p for h in hazards for p in h.props]
         end = None
         loop0 = wallclock.perf_counter()
-        lights_now = [_light_state(p) for p in lights]
+        lights_now = world.light_states(lights)
         while end is None:
             s = ego.state
             progress = done.progress.index
@@ -182,7 +181,7 @@ def run_episode(route: Route, agent_name: str, agent_config: str | None, seed: i
             bubble.update(ego_s, (s.x, s.y), world.time)
             world.step()
             snap = world.snapshot()
-            lights_now = [_light_state(p) for p in lights]  # the state the next tick sees
+            lights_now = world.light_states(lights)  # the state the next tick sees
             tick += 1
             end = (done.update(s.x, s.y) or in_route.update(s.x, s.y)
                    or blocked.update(s.v, world.time, paused=any(h.timeout_active(ego_s, world.time)
@@ -228,13 +227,6 @@ def background_roads(route: Route, net) -> frozenset[str]:
 
 class _AgentSetupError(Exception):
     pass
-
-
-def _light_state(p) -> int:
-    import libsumo
-    state = libsumo.trafficlight.getRedYellowGreenState(p.tls)
-    c = state[p.link] if 0 <= p.link < len(state) else "o"
-    return TLS_CODES.index(c) if c in TLS_CODES else -1
 
 
 def _log_tick(log: EpisodeLog, tick: int, t: float, s: EgoState, c: Control, pred: Prediction | None,

@@ -26,6 +26,7 @@ from sumo_nets import net_path
 EGO = "ego"
 CONTEXT_RADIUS = 50.0  # actors within this distance of the ego are read each step [m]
 PERSON_SIZE = 0.6  # box side of a pedestrian for drawing and contacts [m]
+TLS_CODES = "rRyYgGsuoO"  # SUMO link states; light states are their index here, -1 if unknown
 PERSON_PREFIX = "ped"  # every person the harness adds has an id starting with this
 
 # actor classes, as the Leaderboard classifies the other party of a collision
@@ -167,5 +168,11 @@ class World:
         return Snapshot(ids, a[:, :2], a[:, 2], a[:, 3], a[:, 4:6], a[:, 6].astype(int),
                         float(np.mean(bg)) if bg else math.nan)
 
-    def forget(self, vid: str) -> None:
-        self._types.pop(vid, None)
+    def light_states(self, passages) -> list[int]:
+        """State of the route's link at each light passage, as an index into TLS_CODES."""
+        out = []
+        for p in passages:
+            state = libsumo.trafficlight.getRedYellowGreenState(p.tls)
+            c = state[p.link] if 0 <= p.link < len(state) else "o"
+            out.append(TLS_CODES.index(c) if c in TLS_CODES else -1)
+        return out

@@ -39,7 +39,7 @@ FLAGS = ("vehicle", "leader", "walker", "light", "stop", "junction", "obstacle")
 def _resample_path(pts_ego: np.ndarray) -> np.ndarray:
     """(20, 2) points at arc length 0, 1, ..., 19 m along origin + pts (ego frame)."""
     ahead = pts_ego[pts_ego[:, 0] > 0.0]
-    p = np.vstack([[0.0, 0.0], ahead]) if len(ahead) else np.zeros((2, 2)) + [[0, 0], [1, 0]]
+    p = np.vstack([[0.0, 0.0], ahead]) if len(ahead) else np.array([[0.0, 0.0], [1.0, 0.0]])  # straight on
     cum = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(p, axis=0).T))])
     q = np.arange(N_PATH, dtype=float)
     if cum[-1] < q[-1]:  # extend straight beyond the known path

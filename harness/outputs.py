@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from harness.runner import RECORD_FIELDS, STABILITY
-from harness.scoring import LABELS, results
+from harness.scoring import results
 
 BOOTSTRAP = 2000  # resamples
 BOOTSTRAP_SEED = 0
@@ -108,4 +108,4 @@ def write_outputs(records: list[dict], total: int, out: Path, checkpoint: Path, 
     return result
 
 
-__all__ = ["write_outputs", "write_records_csv", "summary_rows", "collisions_per_km", "bootstrap", "LABELS"]
+__all__ = ["write_outputs", "write_records_csv", "summary_rows", "collisions_per_km", "bootstrap"]

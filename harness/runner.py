@@ -157,10 +157,11 @@ def run_eval(jobs: list[Job], out: Path, workers: int, resume: bool, show_progre
     Path(jobs[0].log_dir if jobs else out / "logs").mkdir(parents=True, exist_ok=True)
     rec_path = out / "records.jsonl"
     done = read_records(rec_path) if resume else []
-    if not resume:
-        rec_path.write_text("")
-    else:  # drop a torn last line so that appends start on a fresh line
-        rec_path.write_text("".join(json.dumps(r) + "\n" for r in done))
+    # start afresh, or keep the complete records (a torn last line is dropped, so that
+    # appends start on a fresh line); replaced atomically, so no record is lost meanwhile
+    tmp = rec_path.with_name(rec_path.name + ".tmp")
+    tmp.write_text("".join(json.dumps(r) + "\n" for r in done))
+    os.replace(tmp, rec_path)
     have = {r["key"] for r in done}
     todo = [j for j in jobs if j.key not in have]
     records = list(done)

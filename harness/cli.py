@@ -7,6 +7,7 @@ problem and the fix, and returns 2; no traceback, no partial output.
 from __future__ import annotations
 
 import argparse
+import importlib
 import json
 import os
 import sys
@@ -17,6 +18,8 @@ from tqdm import tqdm
 from harness.agent import DEFAULT_AGENT
 
 EXIT_BAD_INPUT = 2
+# Modules of later stages with a ``register(subparsers)`` adding their subcommands.
+STAGE_CLIS = ("scimm.cli", "model.cli")
 
 
 class BadInput(Exception):
@@ -337,6 +340,11 @@ def build_parser() -> argparse.ArgumentParser:
     bn.add_argument("--routes-count", type=int, default=4, help="routes of the set to run (default 4)")
     bn.add_argument("--json", help="also write the figures as JSON to this file")
     bn.set_defaults(func=_bench)
+
+    # Later stages add their own subcommands (teacher, train, reproduce): the CLI is the one
+    # place that sees every stage, so it imports them here by name and nowhere else.
+    for name in STAGE_CLIS:
+        importlib.import_module(name).register(sub)
     return p
 
 

@@ -9,21 +9,33 @@ from __future__ import annotations
 import argparse
 import importlib
 import json
-import os
+import math
 import sys
 from pathlib import Path
 
 from tqdm import tqdm
 
 from harness.agent import DEFAULT_AGENT
+from harness.episode import AGENT_TIMEOUT
 
 EXIT_BAD_INPUT = 2
 # Modules of later stages with a ``register(subparsers)`` adding their subcommands.
-STAGE_CLIS = ("scimm.cli", "model.cli")
+STAGE_CLIS = ("scimm.cli", "model.cli", "model.reproduce")
 
 
 class BadInput(Exception):
     """User error: printed as one line, exit code 2."""
+
+
+def _seed(text: str) -> int:
+    """argparse type of every --seed: an integer >= 0 (numpy's SeedSequence takes no negative)."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"invalid int value: {text!r}") from None
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"invalid seed {value}: must be >= 0")
+    return value
 
 
 class _Parser(argparse.ArgumentParser):
@@ -109,18 +121,46 @@ def _subset(spec: str | None, ids: list[str]) -> list[str]:
     return [i for i in ids if i in set(chosen)]
 
 
+def _check_run_options(args: argparse.Namespace) -> None:
+    """Numbers and backend of eval / collect, checked before anything is read or written."""
+    if args.workers is not None and args.workers < 1:
+        raise BadInput(f"--workers {args.workers}: must be >= 1")
+    if args.repetitions < 1:
+        raise BadInput(f"--repetitions {args.repetitions}: must be >= 1")
+    timeout = getattr(args, "agent_timeout", None)
+    if timeout is not None and not (math.isfinite(timeout) and timeout > 0):
+        raise BadInput(f"--agent-timeout {timeout}: must be a positive number of seconds")
+    if args.address and args.backend != "ray":
+        raise BadInput("--address needs --backend ray")
+    if args.backend == "ray":
+        from harness.ray_backend import BackendError, check_available
+        try:
+            check_available()
+        except BackendError as exc:
+            raise BadInput(str(exc)) from None
+
+
+def _run(jobs: list, out: Path, args: argparse.Namespace, **kwargs) -> list[dict]:
+    """harness.runner.run_eval on the chosen backend; a Ray that cannot be reached is bad input."""
+    from harness.ray_backend import BackendError
+    from harness.runner import run_eval
+    try:
+        return run_eval(jobs, out, args.workers, args.resume, backend=args.backend, address=args.address, **kwargs)
+    except BackendError as exc:
+        raise BadInput(str(exc)) from None
+
+
 def _eval(args: argparse.Namespace) -> int:
     from harness.agent import AgentLoadError, load_agent
-    from harness.runner import Job, route_seed, run_eval
+    from harness.runner import Job, route_seed, rss_summary
     from scenarios import resolve_set
     from scenarios.check import check_file
     from scenarios.routefile import read_routes
+    _check_run_options(args)
     path = resolve_set(args.routes)
     _, problems = check_file(path)
     if problems:
         raise BadInput(f"{path}: {problems[0]} (run 'sumo-scimm routes check {path}')")
-    if args.workers < 1 or args.repetitions < 1:
-        raise BadInput("--workers and --repetitions must be >= 1")
     if args.agent_config and not Path(args.agent_config).is_file():
         raise BadInput(f"--agent-config {args.agent_config!r} does not exist")
     try:
@@ -130,14 +170,17 @@ def _eval(args: argparse.Namespace) -> int:
     _, routes = read_routes(path)
     keep = set(_subset(args.routes_subset, [r.id for r in routes]))
     routes = [r for r in routes if r.id in keep]
+    if not routes:
+        raise BadInput(f"--routes-subset {args.routes_subset!r} selects no route of {path.name}")
     out = Path(args.out) if args.out else Path("runs") / f"{path.stem}_{args.agent.replace(':', '.')}"
     if not args.resume and (out / "records.jsonl").exists() and (out / "records.jsonl").stat().st_size:
         raise BadInput(f"{out} already holds a run: add --resume to finish it, or choose another --out")
-    jobs = [Job(k, r, rep, args.agent, args.agent_config, route_seed(args.seed, k), str(out / "logs"), args.rules)
+    jobs = [Job(k, r, rep, args.agent, args.agent_config, route_seed(args.seed, k), str(out / "logs"), args.rules,
+                agent_timeout=args.agent_timeout)
             for k, (rep, r) in enumerate((rep, r) for rep in range(args.repetitions) for r in routes)]
     checkpoint = Path(args.checkpoint) if args.checkpoint else out / "results.json"
     sensors = [s["type"] for s in load_agent(args.agent).sensors()]
-    records = run_eval(jobs, out, args.workers, args.resume, checkpoint=checkpoint, sensors=sensors)
+    records = _run(jobs, out, args, checkpoint=checkpoint, sensors=sensors)
     g = json.loads(checkpoint.read_text())["_checkpoint"]["global_record"]
     statuses: dict[str, int] = {}
     for r in records:
@@ -145,6 +188,11 @@ def _eval(args: argparse.Namespace) -> int:
     m = g["scores_mean"]
     print(f"{len(records)} routes -> {out}: DS {m['score_composed']:.2f}, RC {m['score_route']:.2f}, "
           f"IS {m['score_penalty']:.3f}; " + ", ".join(f"{k} {v}" for k, v in sorted(statuses.items())))
+    mem = rss_summary(out)
+    if mem is not None:
+        print(f"worker memory: {mem['workers']} processes, up to {mem['max_routes_per_worker']} routes each; "
+              f"RSS after first route {mem['first_mb']:.0f} MB, peak {mem['peak_mb']:.0f} MB, "
+              f"growth {mem['growth_mb']:+.1f} MB (trend {mem['slope_mb_per_100']:+.2f} MB per 100 routes)")
     return 0
 
 
@@ -193,9 +241,9 @@ def _score(args: argparse.Namespace) -> int:
     try:
         data = json.loads(path.read_text())
         out = rescore_results(data, args.rules)
-    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+    except (json.JSONDecodeError, UnicodeDecodeError, RecursionError) as exc:
         raise BadInput(f"{path}: not JSON ({exc})") from None
-    except (ScoreError, KeyError, TypeError, ValueError, IndexError, AttributeError) as exc:
+    except (ScoreError, KeyError, TypeError, ValueError, IndexError, AttributeError, OverflowError) as exc:
         raise BadInput(f"{path}: not a Leaderboard results file ({exc})") from None
     text = json.dumps(out, indent=2) + "\n"
     if args.out:
@@ -220,25 +268,23 @@ def _report(args: argparse.Namespace) -> int:
 
 def _collect(args: argparse.Namespace) -> int:
     from harness.dataset import build_index, describe
-    from harness.runner import Job, route_seed, run_eval
+    from harness.runner import Job, route_seed
     from scenarios import resolve_set
     from scenarios.check import check_file
     from scenarios.routefile import read_routes
+    _check_run_options(args)
     path = resolve_set(args.routes).resolve()
     _, problems = check_file(path)
     if problems:
         raise BadInput(f"{path}: {problems[0]} (run 'sumo-scimm routes check {path}')")
-    if args.workers < 1 or args.repetitions < 1:
-        raise BadInput("--workers and --repetitions must be >= 1")
     out = Path(args.out)
     if not args.resume and (out / "records.jsonl").exists() and (out / "records.jsonl").stat().st_size:
         raise BadInput(f"{out} already holds a collection: add --resume to finish it, or choose another --out")
-    (out / "episodes").mkdir(parents=True, exist_ok=True)
     _, routes = read_routes(path)
     jobs = [Job(k, r, rep, "expert", None, route_seed(args.seed, k), str(out / "logs"),
                 collect_dir=str(out / "episodes"), route_file=str(path))
             for k, (rep, r) in enumerate((rep, r) for rep in range(args.repetitions) for r in routes)]
-    run_eval(jobs, out, args.workers, args.resume, sensors=["pose", "speed", "world"])
+    _run(jobs, out, args, sensors=["pose", "speed", "world"])
     print(describe(build_index(out)))
     return 0
 
@@ -254,6 +300,13 @@ def _data_show(args: argparse.Namespace) -> int:
     return 0
 
 
+def _add_backend_options(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--backend", default="local", choices=("local", "ray"),
+                   help="local worker processes, or Ray tasks (needs the 'ray' extra; see docs/scale.md)")
+    p.add_argument("--address", help="Ray cluster to join (host:port of its head, ray://host:port, or auto); "
+                   "default: a local Ray on --workers CPUs")
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = _Parser(prog="sumo-scimm", description="Closed-loop driving benchmark on SUMO with "
                 "Leaderboard 2.0 scoring and SC-IMM teacher signals.")
@@ -263,7 +316,7 @@ def build_parser() -> argparse.ArgumentParser:
     nsub = nets.add_subparsers(dest="action", required=True, parser_class=_Parser)
     b = nsub.add_parser("build", help="rebuild town nets with netconvert (seeded, reproducible)")
     b.add_argument("--town", help="one town (default: all)")
-    b.add_argument("--seed", type=int, help="builder seed (default: the town's own)")
+    b.add_argument("--seed", type=_seed, help="builder seed (default: the town's own)")
     b.add_argument("--out", help="output folder (default: the package's nets folder)")
     b.set_defaults(func=_nets_build)
     s = nsub.add_parser("show", help="size, junctions, road length, curved share, crossings")
@@ -275,7 +328,7 @@ def build_parser() -> argparse.ArgumentParser:
     rsub = routes.add_subparsers(dest="action", required=True, parser_class=_Parser)
     m = rsub.add_parser("make", help="build a route set from its seeded builder")
     m.add_argument("--set", required=True, help="set name (town12_short, town12_smoke, train, val)")
-    m.add_argument("--seed", type=int, help="builder seed (default: the set's own)")
+    m.add_argument("--seed", type=_seed, help="builder seed (default: the set's own)")
     m.add_argument("--out", help="output file (default: scenarios/<set>.xml)")
     m.set_defaults(func=_routes_make)
     c = rsub.add_parser("check", help="validate a route file: one line per bad route, exit 2")
@@ -290,14 +343,19 @@ def build_parser() -> argparse.ArgumentParser:
     e.add_argument("--repetitions", type=int, default=1, help="runs per route (default 1)")
     e.add_argument("--agent", default=DEFAULT_AGENT, help=f"agent name or module:Class (default {DEFAULT_AGENT})")
     e.add_argument("--agent-config", help="file passed to the agent's setup()")
-    e.add_argument("--workers", type=int, default=os.cpu_count() or 1,
-                   help="worker processes, one libsumo each (default: number of cores)")
+    e.add_argument("--workers", type=int, default=None,
+                   help="worker processes, one libsumo each (default: number of cores; with --backend ray, "
+                        "every CPU of the Ray cluster)")
     e.add_argument("--out", help="run folder (default runs/<set>_<agent>)")
     e.add_argument("--resume", action="store_true", help="finish an interrupted run in --out")
-    e.add_argument("--seed", type=int, default=0, help="run seed; each route derives its own (default 0)")
+    e.add_argument("--seed", type=_seed, default=0, help="run seed; each route derives its own (default 0)")
     e.add_argument("--checkpoint", help="Leaderboard results JSON (default <out>/results.json)")
     e.add_argument("--rules", default="lb2.0", choices=("lb2.0", "lb2.1", "b2d"),
                    help="scoring rules (default lb2.0)")
+    e.add_argument("--agent-timeout", type=float, default=AGENT_TIMEOUT,
+                   help=f"seconds one run_step may take before the route ends as 'Failed - Agent crashed' "
+                        f"(default {AGENT_TIMEOUT:g})")
+    _add_backend_options(e)
     e.set_defaults(func=_eval)
 
     r = sub.add_parser("render", help="video of the BEV while an agent drives one route, and a path PNG")
@@ -306,7 +364,7 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--agent", default=DEFAULT_AGENT, help=f"agent (default {DEFAULT_AGENT})")
     r.add_argument("--agent-config", help="file passed to the agent's setup()")
     r.add_argument("--out", required=True, help="video file (.mp4); the path PNG goes beside it")
-    r.add_argument("--seed", type=int, default=0, help="run seed, as in eval (default 0)")
+    r.add_argument("--seed", type=_seed, default=0, help="run seed, as in eval (default 0)")
     r.set_defaults(func=_render)
 
     sc = sub.add_parser("score", help="recompute the scores of a Leaderboard results JSON (ours or CARLA's)")
@@ -323,10 +381,12 @@ def build_parser() -> argparse.ArgumentParser:
     co = sub.add_parser("collect", help="drive the expert over a route set and record a dataset at 4 Hz")
     co.add_argument("--routes", required=True, help="route set name or route file (e.g. train)")
     co.add_argument("--out", required=True, help="dataset folder")
-    co.add_argument("--workers", type=int, default=os.cpu_count() or 1, help="worker processes (default: cores)")
+    co.add_argument("--workers", type=int, default=None,
+                    help="worker processes (default: cores; with --backend ray, every CPU of the cluster)")
     co.add_argument("--repetitions", type=int, default=1, help="runs per route, each with its own seed (default 1)")
-    co.add_argument("--seed", type=int, default=0, help="run seed (default 0)")
+    co.add_argument("--seed", type=_seed, default=0, help="run seed (default 0)")
     co.add_argument("--resume", action="store_true", help="finish an interrupted collection")
+    _add_backend_options(co)
     co.set_defaults(func=_collect)
 
     da = sub.add_parser("data", help="describe a dataset")
@@ -365,4 +425,6 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    # run through the imported module, so that later stages raise the same BadInput class
+    from harness.cli import main as _main
+    sys.exit(_main())

@@ -5,12 +5,16 @@ Each tick, as in the leaderboard: the agent decides on the state after the last 
 model and mirrors it into SUMO, hazards advance, SUMO steps, the new snapshot is read,
 contacts and route-ending criteria are evaluated, and everything goes into the log.
 
-An exception in the agent, or a Control with NaN/inf, ends the route as
-"Failed - Agent crashed"; the log up to that tick is kept.
+An exception in the agent, a Control with NaN/inf, or a ``run_step`` that takes longer
+than the per-step deadline (``agent_timeout``, wall clock, default AGENT_TIMEOUT) ends the
+route as "Failed - Agent crashed", as the Leaderboard's agent watchdog does; the log up to
+that tick is kept.
 """
 from __future__ import annotations
 
 import math
+import signal
+import threading
 import time as wallclock
 import traceback
 from dataclasses import dataclass, field
@@ -28,6 +32,10 @@ from harness.world import STATIC, Snapshot, World
 from scenarios.routefile import Route
 from sumo_nets import load_net
 
+# Wall-clock limit of one run_step call [s]. The Leaderboard's agent watchdog uses its
+# --timeout (60 s by default in 1.0); real agents take milliseconds, a learned one its
+# first call included, so 60 s only catches a hung agent.
+AGENT_TIMEOUT = 60.0
 
 
 @dataclass
@@ -43,7 +51,8 @@ class EpisodeLog:
 
     def arrays(self) -> dict[str, np.ndarray]:
         out = {k: np.asarray(v, dtype=float) for k, v in self.columns.items()}
-        out["tls"] = np.asarray(self.tls, dtype=np.int8).reshape(len(self.columns["t"]), -1)
+        n = len(self.columns["t"])  # 0 when the route ended before its first tick (setup failed)
+        out["tls"] = np.asarray(self.tls, dtype=np.int8).reshape(n, -1) if n else np.zeros((0, 0), np.int8)
         out["contact_tick"] = np.array([c[0] for c in self.contacts], dtype=np.int32)
         out["contact_actor"] = np.array([c[1] for c in self.contacts], dtype=str)
         out["contact_class"] = np.array([c[2] for c in self.contacts], dtype=np.int8)
@@ -102,8 +111,9 @@ def _inputs(specs: list[dict], ego: EgoState, plan: GlobalPlan, progress: int, s
 
 
 def run_episode(route: Route, agent_name: str, agent_config: str | None, seed: int,
-                on_frame=None) -> EpisodeResult:
+                on_frame=None, agent_timeout: float = AGENT_TIMEOUT) -> EpisodeResult:
     """Drive one route with an agent; ``seed`` fixes traffic, hazards, noise and SUMO.
+    ``agent_timeout``: the per-step deadline of ``run_step`` [s of wall time].
 
     ``on_frame(frame)`` is called with a :class:`Frame` after every tick (rendering,
     recording); it must not change the simulation.
@@ -164,8 +174,9 @@ def run_episode(route: Route, agent_name: str, agent_config: str | None, seed: i
             s = ego.state
             progress = done.progress.index
             try:
-                out = agent.run_step(_inputs(specs, s, plan, progress, snap, (snap, lights_now, props),
-                                             lambda: bev.render(s, snap, plan, lights_now, props)), world.time)
+                inputs = _inputs(specs, s, plan, progress, snap, (snap, lights_now, props),
+                                 lambda: bev.render(s, snap, plan, lights_now, props))
+                out = _step_with_deadline(agent, inputs, world.time, agent_timeout)
                 control, pred = split_output(out)
                 if not control.is_finite():
                     raise ValueError(f"non-finite control {control}")
@@ -227,6 +238,48 @@ def background_roads(route: Route, net) -> frozenset[str]:
 
 class _AgentSetupError(Exception):
     pass
+
+
+class AgentTimeout(RuntimeError):
+    """``run_step`` ran past the per-step deadline."""
+
+
+_armed_timeout: float | None = None  # the deadline [s] while a step runs under the alarm
+
+
+def _timeout_error(timeout: float) -> AgentTimeout:
+    return AgentTimeout(f"Agent took longer than {timeout:g}s to send its command")  # the Leaderboard's words
+
+
+def _on_alarm(signum, frame) -> None:
+    if _armed_timeout is not None:  # a signal arriving after the step ended is ignored
+        raise _timeout_error(_armed_timeout)
+
+
+def _step_with_deadline(agent, inputs: dict, timestamp: float, timeout: float):
+    """``agent.run_step(inputs, timestamp)``, ended after ``timeout`` s of wall time.
+
+    In the main thread a SIGALRM timer interrupts the agent, as the Leaderboard's watchdog
+    interrupts its main thread (a sleeping or looping agent stops there; one inside a long
+    C call, when it returns). Elsewhere, or if the agent swallowed the interruption, the
+    step's duration is checked when it returns."""
+    global _armed_timeout
+    alarm = threading.current_thread() is threading.main_thread() and hasattr(signal, "setitimer")
+    t0 = wallclock.perf_counter()
+    if alarm:
+        if signal.getsignal(signal.SIGALRM) is not _on_alarm:
+            signal.signal(signal.SIGALRM, _on_alarm)
+        _armed_timeout = timeout
+        signal.setitimer(signal.ITIMER_REAL, timeout)
+    try:
+        out = agent.run_step(inputs, timestamp)
+    finally:
+        if alarm:
+            _armed_timeout = None
+            signal.setitimer(signal.ITIMER_REAL, 0)
+    if wallclock.perf_counter() - t0 > timeout:
+        raise _timeout_error(timeout)
+    return out
 
 
 def _log_tick(log: EpisodeLog, tick: int, t: float, s: EgoState, c: Control, pred: Prediction | None,

@@ -92,3 +92,82 @@ def write_report(folders: list[Path], out: Path) -> str:
         (out / f"{stem}.md").write_text(md + "\n")
         text.append(md)
     return "\n\n".join(text)
+
+
+# --- several seeds per arm (sumo-scimm reproduce) ---------------------------------------
+def _route_rows(folder: Path) -> dict[str, dict[str, float]]:
+    """records.csv of a run as {route key: figures}, for the seed-and-route bootstrap."""
+    load_run(folder)  # checks the folder
+    with open(folder / "records.csv", newline="") as f:
+        rows = list(csv.DictReader(f))
+    keys = ("collisions_layout", "collisions_pedestrian", "collisions_vehicle")
+    return {r["key"]: {"DS": float(r["ds"]), "RC": float(r["rc"]), "IS": float(r["is"]),
+                       "coll": float(sum(int(r[k]) for k in keys)), "km": float(r["km_driven"]),
+                       **{k: float(r[k]) for k, _ in TABLE4}} for r in rows}
+
+
+def _figures(rows: list[dict[str, float]]) -> dict[str, float]:
+    """Table 3 and 4 figures of a list of route rows (means; collisions per km over the sum)."""
+    out = {k: float(np.mean([r[k] for r in rows])) for k in ("DS", "RC", "IS")}
+    km = sum(r["km"] for r in rows)
+    out["Collision/km"] = sum(r["coll"] for r in rows) / km if km > 0 else math.nan
+    for key, _ in TABLE4:
+        vals = np.array([r[key] for r in rows], dtype=float)
+        out[key] = float(np.nanmean(vals)) if np.isfinite(vals).any() else math.nan
+    return out
+
+
+def arm_figures(folders: list[Path], n_boot: int = 2000, seed: int = 0) -> dict[str, tuple[float, float, float]]:
+    """Mean over seeds (one run folder per seed) of every table figure, with a 95 % interval
+    from a two-level bootstrap: resample the seeds, then the routes (the same routes for
+    every seed of a draw). With one seed it is the bootstrap over routes.
+    Returns {figure: (mean, low, high)}."""
+    runs = [_route_rows(f) for f in folders]
+    keys = sorted(set.intersection(*(set(r) for r in runs)))
+    if not keys:
+        raise ReportError(f"no route is in every run of {', '.join(map(str, folders))}")
+    per_seed = [_figures([r[k] for k in keys]) for r in runs]
+    rng = np.random.default_rng(seed)
+    draws: dict[str, list[float]] = {k: [] for k in per_seed[0]}
+    for _ in range(n_boot):
+        seeds = rng.integers(0, len(runs), len(runs))
+        routes = [keys[i] for i in rng.integers(0, len(keys), len(keys))]
+        figs = [_figures([runs[s][k] for k in routes]) for s in seeds]
+        for k in draws:
+            draws[k].append(float(np.mean([f[k] for f in figs])))
+    return {k: (float(np.mean([f[k] for f in per_seed])), float(np.nanpercentile(draws[k], 2.5)),
+                float(np.nanpercentile(draws[k], 97.5))) for k in draws}
+
+
+def write_arm_report(arms: dict[str, list[Path]], out: Path, n_boot: int = 2000) -> str:
+    """Tables 3 and 4 for arms with several seeds each (the first arm is the baseline the
+    relative change is computed against, as the paper does): CSV and Markdown in ``out``."""
+    figs = {name: arm_figures(folders, n_boot) for name, folders in arms.items()}
+    base = figs[next(iter(figs))]
+    out.mkdir(parents=True, exist_ok=True)
+    text = []
+    for cols, stem, title in ((TABLE3, "table3", "Table 3: closed-loop driving performance"),
+                              (TABLE4, "table4", "Table 4: temporal stability")):
+        rows = []
+        for name, f in figs.items():
+            row: dict = {"arm": name, "seeds": len(arms[name])}
+            for key, _ in cols:
+                m, lo, hi = f[key]
+                row.update({key: m, f"{key} ci95_low": lo, f"{key} ci95_high": hi,
+                            f"{key} change %": _change(m, base[key][0])})
+            rows.append(row)
+        with open(out / f"{stem}.csv", "w", newline="") as fh:
+            w = csv.DictWriter(fh, fieldnames=list(rows[0]))
+            w.writeheader()
+            w.writerows(rows)
+        lines = [f"### {title} (mean over seeds, 95 % interval, change against {rows[0]['arm']})", "",
+                 "| arm | seeds | " + " | ".join(k for k, _ in cols) + " |", "|" + " --- |" * (len(cols) + 2)]
+        for r in rows:
+            cells = [f"{r[k]:.3f} [{r[k + ' ci95_low']:.3f}, {r[k + ' ci95_high']:.3f}]"
+                     + ("" if r is rows[0] or not math.isfinite(r[k + ' change %']) else f" ({r[k + ' change %']:+.1f} %)")
+                     for k, _ in cols]
+            lines.append(f"| {r['arm']} | {r['seeds']} | " + " | ".join(cells) + " |")
+        md = "\n".join(lines)
+        (out / f"{stem}.md").write_text(md + "\n")
+        text.append(md)
+    return "\n\n".join(text)

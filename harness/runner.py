@@ -4,19 +4,27 @@ Outputs in the run folder:
 
     records.jsonl   one JSON record per route run, appended and flushed as each ends
     records.csv     the same as a table, rewritten (atomically) after every route
+    workers.jsonl   per route run: the worker process (host, pid), how many routes it has
+                    run, and its resident memory after this one [MB] (the soak figure)
     logs/<route>_rep<k>.npz   the per-tick event log of that run (harness.episode.EpisodeLog)
 
 Every route run gets its own seed, derived from the run seed and the run's index in the
-job list, so records do not depend on the number of workers. A worker that dies (kill -9,
-segfault) has its route recorded as "Failed - Simulation crashed" with the reason; a new
-worker takes over and the run goes on. ``resume`` keeps the complete records already in
-``records.jsonl`` and runs only the rest (a torn last line is dropped and redone).
+job list, so records do not depend on the number of workers or the backend. A worker that
+dies (kill -9, segfault) has its route recorded as "Failed - Simulation crashed" with the
+reason; a new worker takes over and the run goes on. ``resume`` keeps the complete records
+already in ``records.jsonl`` and runs only the rest (a torn last line is dropped and redone).
+
+Backends: ``local`` (spawned worker processes, each running routes one after another) and
+``ray`` (harness.ray_backend: each route a Ray task in a fresh process); both stream the
+records into the same files in completion order.
 """
 from __future__ import annotations
 
 import json
 import multiprocessing as mp
 import os
+import signal
+import socket
 from dataclasses import dataclass
 from multiprocessing.connection import wait
 from pathlib import Path
@@ -25,6 +33,7 @@ import numpy as np
 from tqdm import tqdm
 
 from harness import criteria
+from harness.episode import AGENT_TIMEOUT
 from harness.infractions import KEYS
 from harness.scoring import outside_lanes, route_record
 from scenarios.routefile import Route
@@ -52,6 +61,7 @@ class Job:
     rules: str = "lb2.0"
     collect_dir: str = ""  # if set, the episode is recorded there at 4 Hz (harness.collect)
     route_file: str = ""
+    agent_timeout: float = AGENT_TIMEOUT  # per-step deadline of run_step [s of wall time]
 
     @property
     def key(self) -> str:
@@ -95,7 +105,7 @@ def run_job(job: Job) -> dict:
         from harness.collect import Recorder
         recorder = Recorder()
     res = run_episode(job.route, job.agent, job.agent_config, job.seed,
-                      on_frame=recorder.on_frame if recorder else None)
+                      on_frame=recorder.on_frame if recorder else None, agent_timeout=job.agent_timeout)
     arrays = res.log.arrays()
     log_path = Path(job.log_dir) / f"{job.key}.npz"
     tmp = log_path.with_name(log_path.name + ".tmp.npz")
@@ -114,21 +124,48 @@ def run_job(job: Job) -> dict:
     return record
 
 
-def _crash_record(job: Job, reason: str) -> dict:
+def crash_record(job: Job, reason: str) -> dict:
+    """The record of a route whose simulation or worker failed: "Failed - Simulation crashed"."""
     return make_record(job, criteria.FAILED_SIMULATION, 0.0, float(job.route.length), 0.0, 0.0, 0, reason,
                        {k: [] for k in KEYS}, {}, job.rules)
 
 
+def run_job_safely(job: Job) -> dict:
+    """run_job, with a harness error turned into the route's crash record (the run goes on)."""
+    try:
+        return run_job(job)
+    except Exception as exc:  # noqa: BLE001 - a harness bug fails this route, not the run
+        return crash_record(job, f"{type(exc).__name__}: {exc}")
+
+
+def rss_mb() -> float:
+    """Resident memory of this process [MB] (Linux /proc; elsewhere the peak, from getrusage)."""
+    try:
+        with open("/proc/self/statm") as f:
+            return round(int(f.read().split()[1]) * os.sysconf("SC_PAGE_SIZE") / 2**20, 1)
+    except (OSError, ValueError, IndexError):
+        import resource
+        return round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, 1)  # KiB on Linux
+
+
+def worker_stats(routes_run: int) -> dict:
+    """This worker process after a route: host, pid, routes it has run, resident memory [MB]."""
+    return {"host": socket.gethostname(), "pid": os.getpid(), "routes": routes_run, "rss_mb": rss_mb()}
+
+
 def _worker(conn) -> None:
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C reaches the parent, which ends its workers
+    routes_run = 0
     while True:
-        job = conn.recv()
+        try:
+            job = conn.recv()
+        except (EOFError, OSError):  # the parent is gone
+            return
         if job is None:
             return
-        try:
-            rec = run_job(job)
-        except Exception as exc:  # noqa: BLE001 - a harness bug fails this route, not the run
-            rec = _crash_record(job, f"{type(exc).__name__}: {exc}")
-        conn.send(rec)
+        rec = run_job_safely(job)
+        routes_run += 1
+        conn.send((rec, worker_stats(routes_run)))
 
 
 def read_records(path: Path) -> list[dict]:
@@ -145,30 +182,21 @@ def read_records(path: Path) -> list[dict]:
     return out
 
 
-def run_eval(jobs: list[Job], out: Path, workers: int, resume: bool, show_progress: bool = True,
-             checkpoint: Path | None = None, sensors: list[str] | None = None) -> list[dict]:
-    """Run jobs on ``workers`` processes; returns all records (old ones too when resuming).
-    After every route: records.jsonl (appended), records.csv and results.json (rewritten);
-    at the end also summary.csv."""
-    from harness.outputs import write_outputs
-    checkpoint = checkpoint or out / "results.json"
-    sensors = sensors or []
-    out.mkdir(parents=True, exist_ok=True)
-    Path(jobs[0].log_dir if jobs else out / "logs").mkdir(parents=True, exist_ok=True)
-    rec_path = out / "records.jsonl"
-    done = read_records(rec_path) if resume else []
-    # start afresh, or keep the complete records (a torn last line is dropped, so that
-    # appends start on a fresh line); replaced atomically, so no record is lost meanwhile
-    tmp = rec_path.with_name(rec_path.name + ".tmp")
-    tmp.write_text("".join(json.dumps(r) + "\n" for r in done))
-    os.replace(tmp, rec_path)
-    have = {r["key"] for r in done}
-    todo = [j for j in jobs if j.key not in have]
-    records = list(done)
-    bar = tqdm(total=len(jobs), initial=len(jobs) - len(todo), desc="eval", unit="route",
-               disable=not show_progress or None)
+def _keep_complete_lines(path: Path, resume: bool) -> list[dict]:
+    """Start a JSON-lines file afresh, or (resume) keep its complete lines; replaced
+    atomically, so nothing is lost meanwhile, and appends start on a fresh line."""
+    kept = read_records(path) if resume else []
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_text("".join(json.dumps(r) + "\n" for r in kept))
+    os.replace(tmp, path)
+    return kept
+
+
+def _run_local(jobs: list[Job], workers: int, emit) -> None:
+    """Run jobs on ``workers`` spawned processes; ``emit(job, record, stats)`` as each ends
+    (stats None when the worker died). Interrupted (Ctrl-C), it ends its workers."""
     ctx = mp.get_context("spawn")
-    pending = list(reversed(todo))
+    pending = list(reversed(jobs))
     slots: dict = {}  # connection -> (process, job or None)
 
     def start_worker():
@@ -178,16 +206,8 @@ def run_eval(jobs: list[Job], out: Path, workers: int, resume: bool, show_progre
         child.close()
         slots[parent] = (p, None)
 
-    with open(rec_path, "a") as f:
-        def record(rec: dict) -> None:
-            f.write(json.dumps(rec) + "\n")
-            f.flush()
-            os.fsync(f.fileno())
-            records.append(rec)
-            write_outputs(records, len(jobs), out, checkpoint, sensors, finished=False, summary=False)
-            bar.update(1)
-
-        for _ in range(min(workers, len(todo))):
+    try:
+        for _ in range(min(workers, len(jobs))):
             start_worker()
         while slots:
             for conn, (p, job) in list(slots.items()):
@@ -206,20 +226,100 @@ def run_eval(jobs: list[Job], out: Path, workers: int, resume: bool, show_progre
             for conn, (p, job) in list(slots.items()):
                 if conn in ready:
                     try:
-                        rec = conn.recv()
+                        rec, stats = conn.recv()
                     except (EOFError, OSError):
                         rec = None
                     if rec is not None:
-                        record(rec)
+                        emit(job, rec, stats)
                         slots[conn] = (p, None)
                         continue
                 if p.sentinel in ready or not p.is_alive():
                     p.join()
                     del slots[conn]
                     if job is not None:
-                        record(_crash_record(job, f"worker process died (exit code {p.exitcode})"))
+                        emit(job, crash_record(job, f"worker process died (exit code {p.exitcode})"), None)
                     if pending:
                         start_worker()
-    bar.close()
+    finally:
+        for p, _ in slots.values():  # only after an interruption or an error
+            p.terminate()
+            p.join()
+
+
+def run_eval(jobs: list[Job], out: Path, workers: int | None, resume: bool, show_progress: bool = True,
+             checkpoint: Path | None = None, sensors: list[str] | None = None, backend: str = "local",
+             address: str | None = None) -> list[dict]:
+    """Run jobs on ``workers`` processes (local) or Ray tasks (``backend="ray"``, on the
+    cluster at ``address``, or a local Ray); returns all records (old ones too when resuming).
+    After every route: records.jsonl and workers.jsonl (appended), records.csv and
+    results.json (rewritten); at the end also summary.csv. ``workers`` None: every core
+    (local) or every CPU of the Ray cluster."""
+    from harness.outputs import write_outputs
+    pool = None
+    if backend == "ray":  # connect first: a cluster that cannot be reached leaves no file behind
+        from harness.ray_backend import RayPool
+        pool = RayPool(address, workers)
+    try:
+        checkpoint = checkpoint or out / "results.json"
+        sensors = sensors or []
+        out.mkdir(parents=True, exist_ok=True)
+        dirs = {j.log_dir for j in jobs} | {j.collect_dir for j in jobs if j.collect_dir}
+        for d in dirs or {str(out / "logs")}:
+            Path(d).mkdir(parents=True, exist_ok=True)
+        rec_path, workers_path = out / "records.jsonl", out / "workers.jsonl"
+        done = _keep_complete_lines(rec_path, resume)
+        _keep_complete_lines(workers_path, resume)
+        have = {r["key"] for r in done}
+        todo = [j for j in jobs if j.key not in have]
+        records = list(done)
+        bar = tqdm(total=len(jobs), initial=len(jobs) - len(todo), desc="eval", unit="route",
+                   disable=not show_progress or None)
+        with open(rec_path, "a") as f, open(workers_path, "a") as wf:
+            def emit(job: Job, rec: dict, stats: dict | None) -> None:
+                f.write(json.dumps(rec) + "\n")
+                f.flush()
+                os.fsync(f.fileno())
+                records.append(rec)
+                if stats is not None:
+                    wf.write(json.dumps({"key": job.key, **stats}) + "\n")
+                    wf.flush()
+                write_outputs(records, len(jobs), out, checkpoint, sensors, finished=False, summary=False)
+                bar.update(1)
+
+            if pool is not None:
+                pool.run(todo, emit)
+            else:
+                _run_local(todo, workers or os.cpu_count() or 1, emit)
+        bar.close()
+    finally:
+        if pool is not None:
+            pool.close()
     write_outputs(records, len(jobs), out, checkpoint, sensors, finished=len(records) == len(jobs))
     return records
+
+
+def rss_summary(out: Path) -> dict | None:
+    """Worker memory over a run, from its workers.jsonl: for each worker process, the
+    resident memory after its first and after its last route [MB]. ``growth_mb`` is the
+    largest last - first over the workers, ``slope_mb_per_100`` the largest least-squares
+    trend (MB per 100 routes) of a worker that ran >= 3 routes; None without samples."""
+    path = out / "workers.jsonl"
+    rows = read_records(path) if path.exists() else []
+    by_worker: dict[tuple, list[tuple[int, float]]] = {}
+    for r in rows:
+        by_worker.setdefault((r.get("host"), r["pid"]), []).append((r["routes"], r["rss_mb"]))
+    if not by_worker:
+        return None
+    growth, slope = [], []
+    for samples in by_worker.values():
+        samples.sort()
+        growth.append(samples[-1][1] - samples[0][1])
+        if len(samples) >= 3:
+            n, mb = np.array(samples, dtype=float).T
+            slope.append(float(np.polyfit(n, mb, 1)[0]) * 100)
+    return {"routes": len(rows), "workers": len(by_worker),
+            "max_routes_per_worker": max(len(s) for s in by_worker.values()),
+            "first_mb": max(s[0][1] for s in by_worker.values()),
+            "peak_mb": max(mb for s in by_worker.values() for _, mb in s),
+            "growth_mb": round(max(growth), 1),
+            "slope_mb_per_100": round(max(slope), 2) if slope else float("nan")}

@@ -1,0 +1,147 @@
+"""The Ray backend of the runner (SPEC §10): each route run is a Ray task.
+
+``sumo-scimm eval --backend ray [--address ADDR]``. Without ``--address`` a local Ray is
+started with ``--workers`` CPUs (default: every core) and shut down at the end; with it,
+the driver joins that cluster (``host:port`` of its head, ``auto``, or ``ray://host:port``
+for Ray Client) and only disconnects at the end.
+
+- One SUMO per process: a task runs in a fresh worker process (``max_calls=1``), so no
+  libsumo state is ever shared between routes; it asks for 1 CPU.
+- Same records as the local backend: the task runs ``harness.runner.run_job`` on the same
+  Job (same seed); a task that raises is the route's "Failed - Simulation crashed" record,
+  and so is a worker that dies (``max_retries=0``: never retried, as a dead local worker).
+- Results land on the driver: the task writes its episode log (and, for ``collect``, its
+  dataset episode) into a temporary folder of its node and returns the bytes; the driver
+  writes them under the run folder, so a cluster needs no shared file system.
+- At most ``workers`` tasks are in flight (default: every CPU of the cluster); records
+  stream back in completion order through the runner's ``emit``.
+
+Nodes need the project installed (``pip install 'sumo-scimm[ray]'``, same version as the
+driver): the task imports ``harness`` there.
+"""
+from __future__ import annotations
+
+import dataclasses
+import logging
+import os
+import socket
+import tempfile
+from pathlib import Path
+
+from harness.runner import Job, crash_record, run_job_safely, worker_stats
+
+OUTPUT_KINDS = ("logs", "episodes")  # folders of a task's files: Job.log_dir, Job.collect_dir
+CONNECT_TIMEOUT = 10.0  # s to reach the head node's port before ray.init (which would hang)
+
+
+class BackendError(Exception):
+    """Ray missing or its cluster unreachable: a user error (one line, exit 2)."""
+
+
+def _ray():
+    try:
+        import ray
+    except ImportError:
+        raise BackendError("--backend ray needs the ray package: pip install 'sumo-scimm[ray]'") from None
+    return ray
+
+
+def check_available() -> None:
+    """Raise BackendError unless ``import ray`` works."""
+    _ray()
+
+
+def _check_reachable(address: str) -> None:
+    """A ``host:port`` or ``ray://host:port`` address must accept a TCP connection
+    (``ray.init`` retries an unreachable one for ever)."""
+    hostport = address.split("://", 1)[-1]
+    host, _, port = hostport.rpartition(":")
+    if not host or not port.isdigit():
+        if address == "auto":
+            return
+        raise BackendError(f"--address {address!r}: expected host:port, ray://host:port or auto")
+    try:
+        socket.create_connection((host.strip("[]"), int(port)), timeout=CONNECT_TIMEOUT).close()
+    except OSError as exc:
+        raise BackendError(f"--address {address!r}: no Ray cluster answers there ({exc.strerror or exc}); "
+                           "start one with 'ray start --head' or check the address") from None
+
+
+def _run_task(job: Job) -> tuple[dict, dict, dict[str, bytes]]:
+    """In a Ray worker: run the job with its files in a temporary folder; returns the
+    record, the worker's stats and the files ({"logs/<name>": bytes, ...})."""
+    with tempfile.TemporaryDirectory(prefix="sumo-scimm-") as tmp:
+        folders = {kind: Path(tmp) / kind for kind in OUTPUT_KINDS}
+        for d in folders.values():
+            d.mkdir()
+        here = dataclasses.replace(job, log_dir=str(folders["logs"]),
+                                   collect_dir=str(folders["episodes"]) if job.collect_dir else "")
+        rec = run_job_safely(here)
+        files = {f"{kind}/{p.name}": p.read_bytes() for kind, d in folders.items()
+                 for p in sorted(d.iterdir()) if not p.name.endswith(".tmp.npz")}
+    return rec, worker_stats(1), files
+
+
+def _write_files(job: Job, files: dict[str, bytes]) -> None:
+    """Write a task's files under the job's folders (atomically, as the local backend does)."""
+    folders = {"logs": job.log_dir, "episodes": job.collect_dir}
+    for name, data in files.items():
+        kind, base = name.split("/", 1)
+        path = Path(folders[kind]) / base
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmp = path.with_name(path.name + ".tmp")
+        tmp.write_bytes(data)
+        os.replace(tmp, path)
+
+
+class RayPool:
+    """A connection to Ray for one run: ``run(jobs, emit)`` then ``close()``."""
+
+    def __init__(self, address: str | None, workers: int | None):
+        ray = _ray()
+        self._ray = ray
+        self._started = False
+        if not ray.is_initialized():
+            quiet = {"include_dashboard": False, "log_to_driver": False, "logging_level": logging.WARNING}
+            if address:
+                _check_reachable(address)
+                try:
+                    ray.init(address=address, **quiet)
+                except (ConnectionError, RuntimeError, ValueError) as exc:
+                    raise BackendError(f"--address {address!r}: cannot join the Ray cluster ({exc})") from None
+            else:
+                ray.init(num_cpus=workers or os.cpu_count() or 1, **quiet)
+            self._started = True
+        self.slots = workers or max(1, int(ray.cluster_resources().get("CPU", 1)))
+        self._task = ray.remote(num_cpus=1, max_calls=1, max_retries=0)(_run_task)
+
+    def run(self, jobs: list[Job], emit) -> None:
+        """Run jobs as tasks; ``emit(job, record, stats)`` as each ends (stats None when
+        its worker died). Interrupted, the tasks still in flight are cancelled."""
+        ray = self._ray
+        pending = list(reversed(jobs))
+        inflight: dict = {}  # object ref -> job
+        try:
+            while pending or inflight:
+                while pending and len(inflight) < self.slots:
+                    job = pending.pop()
+                    inflight[self._task.remote(job)] = job
+                ready, _ = ray.wait(list(inflight), num_returns=1)
+                for ref in ready:
+                    job = inflight.pop(ref)
+                    try:
+                        rec, stats, files = ray.get(ref)
+                    except ray.exceptions.RayError as exc:
+                        reason = str(exc).strip().splitlines()[0] if str(exc).strip() else ""
+                        emit(job, crash_record(job, f"worker process died ({type(exc).__name__}: {reason})"), None)
+                        continue
+                    _write_files(job, files)
+                    emit(job, rec, stats)
+        finally:
+            for ref in inflight:
+                ray.cancel(ref, force=True)
+
+    def close(self) -> None:
+        """Shut down the Ray this pool started (a cluster joined by address is only left)."""
+        if self._started:
+            self._ray.shutdown()

@@ -1,0 +1,333 @@
+"""Faults in real runs, interrupted runs, determinism and bad input (SPEC §12, issue #10).
+
+Already covered in test_closed_loop.py and not repeated here: an agent that raises or
+returns NaN, a worker killed with SIGKILL, SIGKILL of the whole run then --resume,
+--workers 1 vs 2. Bad route files and billion laughs: test_check.py.
+"""
+from __future__ import annotations
+
+import contextlib
+import csv
+import io
+import json
+import math
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import libsumo
+import numpy as np
+import pytest
+from hypothesis import example, given, settings, strategies as st
+
+from controller.vehicle import Control
+from harness.cli import main
+from harness.route_follower import RouteFollower
+from harness.runner import rss_summary
+
+ROOT = Path(__file__).resolve().parents[1]
+KEYS = ["0_rep0", "1_rep0", "2_rep0", "3_rep0"]
+
+
+class Saboteur(RouteFollower):
+    """Follows the route; after 2 s of game time, on route 0 it loads a corrupt net into
+    libsumo (the path is its --agent-config) and drives on, so SUMO fails under the
+    harness; on route 1 it returns an infinite throttle; on route 2 it sleeps 60 s."""
+
+    def setup(self, config):
+        super().setup(None)  # the follower's own defaults; config is the corrupt net's path
+        self.corrupt_net = config
+
+    def run_step(self, input_data, timestamp):
+        control = super().run_step(input_data, timestamp)
+        if timestamp > 2.0:
+            rid = self.plan.route_id
+            if rid == "0" and self.corrupt_net:
+                try:
+                    libsumo.load(["-n", self.corrupt_net, "--no-step-log", "true"])
+                except libsumo.TraCIException:
+                    pass  # SUMO has dropped its network: the harness's next step fails
+                self.corrupt_net = None
+            elif rid == "1":
+                return Control(steer=control.steer, throttle=math.inf)
+            elif rid == "2":
+                time.sleep(60.0)
+        return control
+
+
+def _records(out: Path) -> list[dict]:
+    return [json.loads(line) for line in (out / "records.jsonl").read_text().splitlines()]
+
+
+def _outputs_parse(out: Path) -> list[dict]:
+    """Every output file of a run folder parses; returns the records."""
+    recs = _records(out)
+    for line in (out / "workers.jsonl").read_text().splitlines():
+        assert {"key", "pid", "rss_mb"} <= set(json.loads(line))
+    with open(out / "records.csv", newline="") as f:
+        rows = list(csv.DictReader(f))
+    assert sorted(r["key"] for r in rows) == sorted(r["key"] for r in recs)
+    results = json.loads((out / "results.json").read_text())
+    assert len(results["_checkpoint"]["records"]) == len(recs)
+    if (out / "summary.csv").exists():
+        with open(out / "summary.csv", newline="") as f:
+            assert list(csv.DictReader(f))
+    assert not list(out.rglob("*.tmp")) and not list(out.rglob("*.tmp.npz"))
+    for log in (out / "logs").glob("*.npz"):
+        with np.load(log) as z:
+            assert "x" in z.files
+    return recs
+
+
+def _live_in_group(pgid: int) -> list[int]:
+    """Processes of a process group that are still running (not zombies waiting for init)."""
+    live = []
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            fields = stat.read_text().rsplit(")", 1)[1].split()  # after "pid (comm)"
+        except OSError:
+            continue
+        if int(fields[2]) == pgid and fields[0] != "Z":
+            live.append(int(stat.parent.name))
+    return live
+
+
+def _without_wall_clock(rec: dict) -> dict:
+    rec = dict(rec)
+    rec.pop("wall_time")
+    rec["lb"] = {**rec["lb"], "meta": {**rec["lb"]["meta"], "duration_system": None}}
+    return rec
+
+
+def test_libsumo_error_inf_control_and_deadline_each_fail_their_route(tmp_path, capsys):
+    """One worker runs all four routes: SUMO breaks on route 0, the agent returns inf on 1
+    and sleeps past a 1 s deadline on 2; each is recorded with its reason, and the same
+    worker then drives route 3 to the end (libsumo recovers after an error)."""
+    net = (ROOT / "sumo_nets" / "nets" / "town12.net.xml").read_text()
+    corrupt = tmp_path / "corrupt.net.xml"
+    corrupt.write_text(net[: len(net) // 3])  # cut mid-element: not well-formed XML
+    out = tmp_path / "run"
+    assert main(["eval", "--routes", "town12_smoke", "--agent", "tests.test_reliability:Saboteur",
+                 "--agent-config", str(corrupt), "--agent-timeout", "1", "--workers", "1",
+                 "--out", str(out)]) == 0
+    recs = {r["route_id"]: r for r in _outputs_parse(out)}
+    assert sorted(r["key"] for r in recs.values()) == KEYS  # exactly one record each
+    sim = recs["0"]
+    assert sim["status"] == "Failed - Simulation crashed"
+    assert sim["message"].startswith("FatalTraCIError: A network was not yet constructed")
+    assert recs["1"]["status"] == "Failed - Agent crashed" and "non-finite control" in recs["1"]["message"]
+    assert recs["1"]["message"].count("inf") == 1
+    late = recs["2"]
+    assert late["status"] == "Failed - Agent crashed"
+    assert late["message"] == "AgentTimeout: Agent took longer than 1s to send its command"
+    assert late["wall_time"] < 60.0  # interrupted, not waited out
+    # it hung on its first step after 2 s of SUMO time, the route's game time being the
+    # ticks run: within 2 ticks (0.1 s) of 2 s
+    assert abs(late["game_time"] - 2.0) <= 0.1
+    assert recs["3"]["episode_status"] == "Completed"
+    pids = {json.loads(line)["pid"] for line in (out / "workers.jsonl").read_text().splitlines()}
+    assert len(pids) == 1  # no worker died: the failures were recorded inside it
+
+
+def test_agent_setup_failure_is_recorded_as_such(tmp_path):
+    """An agent whose setup raises ends before the first tick: "Failed - Agent couldn't be
+    set up" with the reason, RC 0, an empty log (not a harness crash)."""
+    from harness.runner import Job, run_job
+    from scenarios import set_path
+    from scenarios.routefile import read_routes
+    config = tmp_path / "follower.json"
+    config.write_text("{not json")
+    route = read_routes(set_path("town12_smoke"))[1][0]
+    rec = run_job(Job(0, route, 0, "route_follower", str(config), 5, str(tmp_path)))
+    assert rec["status"] == "Failed - Agent couldn't be set up" and rec["message"].startswith("JSONDecodeError")
+    assert rec["rc"] == 0.0 and rec["steps"] == 0
+    with np.load(tmp_path / "0_rep0.npz") as log:
+        assert len(log["x"]) == 0 and log["tls"].shape == (0, 0)
+
+
+def test_sigint_then_resume_finishes_the_run_as_an_uninterrupted_one(tmp_path, capsys):
+    """Ctrl-C (SIGINT to the whole process group) mid-run: the parent ends its workers and
+    exits 130; every file parses; --resume runs only the missing routes, and the records
+    equal those of an uninterrupted run with the same seed."""
+    out = tmp_path / "run"
+    cmd = [sys.executable, "-m", "harness.cli", "eval", "--routes", "town12_smoke", "--agent", "route_follower",
+           "--workers", "2", "--out", str(out)]
+    proc = subprocess.Popen(cmd, start_new_session=True, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            env={**os.environ, "PYTHONPATH": str(ROOT)}, text=True)
+    rec = out / "records.jsonl"
+    deadline = time.time() + 180
+    while time.time() < deadline and not (rec.exists() and rec.read_text().count("\n") >= 1):
+        time.sleep(0.05)
+    os.killpg(proc.pid, signal.SIGINT)
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == 130 and "sumo-scimm: interrupted" in err and "Traceback" not in err
+    deadline = time.time() + 10
+    while _live_in_group(proc.pid) and time.time() < deadline:
+        time.sleep(0.1)
+    assert not _live_in_group(proc.pid), "a worker process outlived the interrupted run"
+    first = _outputs_parse(out)
+    assert 1 <= len(first) < 4
+    assert main(["eval", "--routes", "town12_smoke", "--agent", "route_follower", "--workers", "2",
+                 "--out", str(out), "--resume"]) == 0
+    final = _outputs_parse(out)
+    assert sorted(r["key"] for r in final) == KEYS and final[:len(first)] == first
+
+    clean = tmp_path / "clean"
+    assert main(["eval", "--routes", "town12_smoke", "--agent", "route_follower", "--workers", "1",
+                 "--out", str(clean)]) == 0
+    again = {r["key"]: _without_wall_clock(r) for r in _records(clean)}
+    assert {r["key"]: _without_wall_clock(r) for r in final} == again
+    # ... and the seed matters: another run seed drives route 0 differently
+    other = tmp_path / "seed1"
+    assert main(["eval", "--routes", "town12_smoke", "--routes-subset", "0", "--agent", "route_follower",
+                 "--workers", "1", "--seed", "1", "--out", str(other)]) == 0
+    with np.load(clean / "logs" / "0_rep0.npz") as a, np.load(other / "logs" / "0_rep0.npz") as b:
+        n = min(len(a["x"]), len(b["x"]))
+        assert not np.array_equal(a["x"][:n], b["x"][:n])
+
+
+def test_rss_summary_from_worker_samples(tmp_path):
+    """Growth is last - first per worker (largest over workers); the trend is the
+    least-squares slope, worked out by hand for two workers."""
+    rows = [("a", 1, 1, 300.0), ("a", 1, 2, 302.0), ("a", 1, 3, 304.0),  # +2 MB/route -> 200 MB/100
+            ("a", 2, 1, 310.0), ("a", 2, 2, 305.0)]  # growth -5, fewer than 3 samples: no trend
+    (tmp_path / "workers.jsonl").write_text("".join(
+        json.dumps({"key": f"{pid}_{n}", "host": h, "pid": pid, "routes": n, "rss_mb": mb}) + "\n"
+        for h, pid, n, mb in rows) + '{"key": "torn')
+    s = rss_summary(tmp_path)
+    assert s == {"routes": 5, "workers": 2, "max_routes_per_worker": 3, "first_mb": 310.0, "peak_mb": 310.0,
+                 "growth_mb": 4.0, "slope_mb_per_100": 200.0}
+    assert rss_summary(tmp_path / "nowhere") is None
+
+
+# --- bad input ---------------------------------------------------------------------------
+def _cli(argv: list[str]) -> tuple[int, str]:
+    buf = io.StringIO()
+    with contextlib.redirect_stdout(buf), contextlib.redirect_stderr(buf):
+        code = main(argv)
+    return code, buf.getvalue()
+
+
+def _not_int(s: str) -> bool:
+    try:
+        int(s)
+    except ValueError:
+        return True
+    return False
+
+
+def _not_float(s: str) -> bool:
+    try:
+        float(s)
+    except ValueError:
+        return True
+    return False
+
+
+_text = st.text(min_size=1, max_size=12)
+_letters = st.text(alphabet="abcxyz_-:. ", min_size=1, max_size=10)
+BAD_OPTIONS = st.one_of(
+    st.tuples(st.sampled_from(["--workers", "--repetitions"]),
+              st.one_of(st.integers(max_value=0).map(str), _text.filter(_not_int))),
+    st.tuples(st.just("--seed"), st.one_of(st.integers(max_value=-1).map(str), _text.filter(_not_int))),
+    st.tuples(st.just("--agent-timeout"),
+              st.one_of(st.floats(max_value=0.0).map(repr), st.sampled_from(["nan", "inf", "-inf"]),
+                        _text.filter(_not_float))),
+    st.tuples(st.just("--routes-subset"),
+              st.one_of(st.integers(min_value=4).map(str),  # the smoke set has routes 0-3
+                        st.tuples(st.integers(4, 99), st.integers(4, 99)).map(lambda t: f"{t[0]}-{t[1]}"),
+                        st.integers(4, 10**6).map(lambda i: f"0,{i}"),
+                        _letters.filter(lambda s: s.strip(" ,") != ""))),
+    st.tuples(st.just("--agent"), st.one_of(st.from_regex(r"zz[a-z]{1,8}", fullmatch=True),
+                                            st.from_regex(r"zz[a-z]{1,8}:[A-Z][a-z]{1,6}", fullmatch=True),
+                                            st.from_regex(r"harness\.agent:[A-Z][a-z]{1,6}X", fullmatch=True))),
+    st.tuples(st.just("--backend"), _text.filter(lambda s: s not in ("local", "ray"))),
+    st.tuples(st.just("--address"), st.from_regex(r"[a-z0-9.]{1,12}:[0-9]{1,5}", fullmatch=True)),  # no --backend ray
+)
+
+
+@settings(max_examples=60, deadline=None)
+@given(option=BAD_OPTIONS, command=st.sampled_from(["eval", "collect"]))
+def test_bad_cli_values_are_one_line_exit_2_and_write_nothing(tmp_path_factory, option, command):
+    name, value = option
+    if command == "collect" and name in ("--agent", "--agent-timeout", "--routes-subset"):
+        command = "eval"  # eval-only options
+    out = tmp_path_factory.mktemp("bad") / "out"
+    code, printed = _cli([command, "--routes", "town12_smoke", "--out", str(out), f"{name}={value}"])
+    lines = [ln for ln in printed.splitlines() if ln.strip()]
+    assert code == 2 and len(lines) == 1 and lines[0].startswith("sumo-scimm: error: "), printed
+    assert "Traceback" not in printed
+    assert not out.exists()
+
+
+@pytest.mark.parametrize("argv", [
+    ["nets", "build", "--town", "town12"], ["routes", "make", "--set", "town12_smoke"],
+    ["eval", "--routes", "town12_smoke"], ["render", "--routes", "town12_smoke", "--route", "0", "--out", "x.mp4"],
+    ["collect", "--routes", "town12_smoke", "--out", "x"]])
+def test_negative_seed_is_refused_by_every_command(argv, tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    code, printed = _cli([*argv, "--seed=-1"])
+    lines = [ln for ln in printed.splitlines() if ln.strip()]
+    assert code == 2 and len(lines) == 1 and "invalid seed -1: must be >= 0" in lines[0], printed
+    assert not list(tmp_path.iterdir())
+
+
+def _valid_results() -> dict:
+    from tests.test_scoring import _carla_file
+    return _carla_file()
+
+
+_json = st.recursive(st.none() | st.booleans() | st.integers() | st.floats() | st.text(max_size=8),
+                     lambda inner: st.lists(inner, max_size=4) | st.dictionaries(st.text(max_size=8), inner, max_size=4),
+                     max_leaves=12)
+
+
+def _paths(obj, prefix=()):
+    yield prefix
+    if isinstance(obj, dict):
+        for k, v in obj.items():
+            yield from _paths(v, prefix + (k,))
+    elif isinstance(obj, list):
+        for i, v in enumerate(obj):
+            yield from _paths(v, prefix + (i,))
+
+
+_ALL_PATHS = [p for p in _paths(_valid_results()) if p]
+
+
+@settings(max_examples=120, deadline=None)
+@given(where=st.sampled_from(_ALL_PATHS), value=_json, drop=st.booleans(), raw=st.one_of(st.none(), _text))
+@example(where=("_checkpoint", "progress", 1), value=math.inf, drop=False, raw=None)  # int(inf) overflows
+@example(where=("_checkpoint",), value=None, drop=False, raw="[" * 100_000)  # too deep for json
+def test_score_of_a_damaged_results_file_is_a_clean_exit(tmp_path_factory, where, value, drop, raw):
+    """Replace (or drop) any one field of a Leaderboard results file, or write junk: score
+    either rescoring it (exit 0, complete JSON written) or one line and exit 2 with no
+    output file; never a traceback."""
+    data = _valid_results()
+    if raw is not None:
+        text = raw
+    else:
+        parent = data
+        for k in where[:-1]:
+            parent = parent[k]
+        if drop and isinstance(parent, dict):
+            del parent[where[-1]]
+        else:
+            parent[where[-1]] = value
+        text = json.dumps(data)
+    d = tmp_path_factory.mktemp("score")
+    src, dst = d / "results.json", d / "rescored.json"
+    src.write_text(text)
+    code, printed = _cli(["score", str(src), "--out", str(dst)])
+    assert "Traceback" not in printed
+    assert code in (0, 2), printed
+    if code == 2:
+        lines = [ln for ln in printed.splitlines() if ln.strip()]
+        assert len(lines) == 1 and lines[0].startswith("sumo-scimm: error: "), printed
+        assert not dst.exists()
+    else:
+        json.loads(dst.read_text())
+    assert not list(d.glob("*.tmp"))

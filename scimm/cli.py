@@ -1,8 +1,94 @@
-"""``sumo-scimm teacher ...`` subcommands (registered by ``harness.cli``)."""
+"""``sumo-scimm teacher ...`` subcommands (registered by ``harness.cli``).
+
+    sumo-scimm teacher --data DIR [--method fixed|scimm|all]
+        writes DIR/teacher/<method>/ (scimm.teacher), then, when both the fixed and the
+        scimm folders are complete, prints paper Table 2 (also DIR/teacher/table2.csv) and
+        the mode-meaning check (also DIR/teacher/mode_meaning.csv).
+    sumo-scimm teacher plot --data DIR --episode E --out FILE.png
+        paper Fig. 4 for episode E (its file stem, e.g. 12_rep0).
+"""
 from __future__ import annotations
 
 import argparse
+from pathlib import Path
+
+from tqdm import tqdm
+
+from scimm import teacher as tch
+
+METHOD_CHOICES = (*tch.METHODS, "all")
+
+
+def _dataset(data: str | None) -> tuple[Path, list[Path]]:
+    from harness.cli import BadInput
+    if not data:
+        raise BadInput("--data DIR is required (a dataset folder made by 'sumo-scimm collect')")
+    folder = Path(data)
+    files = tch.episode_files(folder) if (folder / "episodes").is_dir() else []
+    if not files:
+        raise BadInput(f"{folder} is not a dataset folder (no episodes/*.npz; make one with 'sumo-scimm collect')")
+    return folder, files
+
+
+def _write_csv(table, path: Path) -> None:
+    tmp = path.with_name(path.name + ".tmp")
+    table.to_csv(tmp, index=False)
+    tmp.replace(path)
+
+
+def _teacher(args: argparse.Namespace) -> int:
+    from scimm.modes import IMMConfig
+    from scimm.table2 import evaluate, format_meaning, format_table2
+    folder, files = _dataset(args.data)
+    cfg = IMMConfig()
+    methods = tch.METHODS if args.method == "all" else (args.method,)
+    for method in methods:
+        with tqdm(total=len(files), desc=f"teacher {method}", unit="episode", disable=None) as bar:
+            labels = tch.teach(files, method, cfg, progress=bar.update)
+        out = tch.write_teacher(folder, method, labels, cfg, files)
+        tqdm.write(f"{method}: {len(labels)} episodes -> {out}")
+    if not all(tch.is_complete(folder, m) for m in ("fixed", "scimm")):
+        print("Table 2 needs both teachers: run with --method all")
+        return 0
+    table, meaning = evaluate(folder, files)
+    _write_csv(table, folder / "teacher" / "table2.csv")
+    _write_csv(meaning, folder / "teacher" / "mode_meaning.csv")
+    print(f"Table 2 ({len(files)} episodes; groups = dominant SC-IMM mode) -> {folder / 'teacher' / 'table2.csv'}")
+    print(format_table2(table))
+    print("\nMode meaning: frames of each situation whose dominant mode means it")
+    print(format_meaning(meaning))
+    return 0
+
+
+def _plot(args: argparse.Namespace) -> int:
+    from harness.cli import BadInput
+    from scimm.plot import plot_posterior
+    folder, files = _dataset(args.data)
+    match = [f for f in files if f.stem == args.episode]
+    if not match:
+        stems = [f.stem for f in files]
+        raise BadInput(f"no episode {args.episode!r} in {folder}/episodes (e.g. {', '.join(stems[:3])})")
+    if not args.out.lower().endswith(".png"):
+        raise BadInput(f"--out {args.out!r} must end in .png")
+    if not Path(args.out).resolve().parent.is_dir():
+        raise BadInput(f"--out {args.out!r}: folder does not exist")
+    out = plot_posterior(match[0], Path(args.out), method=args.method)
+    print(f"{out}")
+    return 0
 
 
 def register(sub: argparse._SubParsersAction) -> None:
     """Add this stage's subcommands to the ``sumo-scimm`` parser."""
+    t = sub.add_parser("teacher", help="SC-IMM teacher signals of a dataset, Table 2; 'teacher plot' for Fig. 4")
+    t.add_argument("--data", help="dataset folder (of 'sumo-scimm collect')")
+    t.add_argument("--method", default="all", choices=METHOD_CHOICES,
+                   help="teacher to compute (default all: fixed and scimm)")
+    t.set_defaults(func=_teacher)
+    tsub = t.add_subparsers(dest="teacher_action", parser_class=type(t), metavar="{plot}")
+    p = tsub.add_parser("plot", help="paper Fig. 4: BEV of a few frames and the mode posterior over time")
+    p.add_argument("--data", required=True, help="dataset folder")
+    p.add_argument("--episode", required=True, help="episode file stem, e.g. 12_rep0")
+    p.add_argument("--out", required=True, help="figure file (.png)")
+    p.add_argument("--method", default="scimm", choices=tch.METHODS, help="posterior to plot (default scimm)")
+    p.set_defaults(func=_plot)
+

@@ -189,3 +189,63 @@ def test_bad_shapes_and_pi_orientation_are_refused():
         imm_filter(z, F, Q, R, x0, P0, Pi.T, mu0)  # columns of a non-symmetric Pi do not sum to 1
     with pytest.raises(ValueError, match="F must be"):
         imm_filter(z, F[:, :4], Q, R, x0, P0, Pi, mu0)
+
+
+def filterpy_imm_per_frame(z, F, Q, R, x0, P0, Pi, mu0):
+    """filterpy with Pi (T,M,M) and Q (T,M,n,n) changing every frame. filterpy mixes with the
+    matrix it held at the previous update, so Pi_t is set and its mixing probabilities are
+    recomputed (a private method) before each predict."""
+    n = F.shape[1]
+    filters = []
+    for j in range(len(F)):
+        kf = KalmanFilter(dim_x=n, dim_z=n)
+        kf.F, kf.R, kf.H, kf.x, kf.P = F[j], R, np.eye(n), x0[j].copy(), P0[j].copy()
+        filters.append(kf)
+    imm = IMMEstimator(filters, mu0.copy(), Pi[0])
+    xs, mus = [], []
+    for t, zt in enumerate(z):
+        imm.M = Pi[t]
+        imm._compute_mixing_probabilities()
+        for j, kf in enumerate(filters):
+            kf.Q = Q[t, j]
+        imm.predict()
+        imm.update(zt)
+        xs.append(np.ravel(imm.x).copy())
+        mus.append(np.ravel(imm.mu).copy())
+    return np.array(xs), np.array(mus)
+
+
+def test_per_frame_pi_and_q_equal_filterpy():
+    # T = 75 frames spans three of the blocks in which imm_filter re-lays per-frame inputs
+    rng = np.random.default_rng(9)
+    F, Q, R, Pi, mu0, P0 = random_system(rng)
+    B, Tn = 2, 75
+    z = simulate(rng, F, Q, R, Pi, B=B, T=Tn)
+    A = rng.normal(size=(B, Tn, M, M))
+    Pi_t, Q_t = conditioned(Pi, Q, A, np.exp(rng.normal(scale=0.5, size=(B, Tn, M))))
+    assert not np.allclose(Pi_t[:, 1:], Pi_t[:, :-1])  # really changes every frame
+    x0 = rng.normal(size=(B, M, N))
+    res = imm_filter(z, F, Q_t, R, x0, P0, Pi_t, mu0)
+    for b in range(B):
+        fx, fmu = filterpy_imm_per_frame(z[b], F, Q_t[b], R, x0[b], P0, Pi_t[b], mu0)
+        np.testing.assert_allclose(res.x[b], fx, atol=1e-9, rtol=0)
+        np.testing.assert_allclose(res.mu[b], fmu, atol=1e-9, rtol=0)
+
+
+def test_shared_and_per_frame_inputs_give_identical_results():
+    # the shared (M,M) / (M,n,n) inputs and the same values repeated per frame run the same
+    # arithmetic in a different layout, so the outputs are bitwise equal, NaN frames included
+    rng = np.random.default_rng(10)
+    F, Q, R, Pi, mu0, P0 = random_system(rng)
+    B, Tn = 3, 40
+    z = simulate(rng, F, Q, R, Pi, B=B, T=Tn)
+    z[1, 5:9] = np.nan
+    z[2, 33, 0] = np.nan
+    x0 = rng.normal(size=(B, M, N))
+    Pi_t = np.broadcast_to(Pi, (B, Tn, M, M))
+    Q_t = np.broadcast_to(Q, (B, Tn, M, N, N))
+    shared = imm_filter(z, F, Q, R, x0, P0, Pi, mu0)
+    for q, p in ((Q_t, Pi), (Q, Pi_t), (Q_t, Pi_t)):
+        res = imm_filter(z, F, q, R, x0, P0, p, mu0)
+        for field in ("x", "P", "mu", "x_modes", "loglik"):
+            np.testing.assert_array_equal(getattr(res, field), getattr(shared, field))

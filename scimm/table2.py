@@ -1,0 +1,147 @@
+"""Paper Table 2 (SPEC §6.5): frame-to-frame variation of the raw expert labels and of the
+teacher labels, grouped by the dominant SC-IMM mode; and the mode-meaning check.
+
+Every metric is computed the same way for every row, from a label sequence of one episode:
+path (T, 20, 2) [m, ego frame] at s_k = 0..19 m and speeds (T, 10) [m/s] at tau_k =
+0.25..2.5 s (scimm.pathspeed: the raw expert's speeds are those of paper eq. 12). Metric
+value at frame t compares frame t with t-1 (and t-2); frames without those are NaN.
+
+    speed_delta    mean_k |v_t(tau_k) - v_t-1(tau_k)|                       [m/s]
+    speed_jerk     |v_t(0) - 2 v_t-1(0) + v_t-2(0)| / dt^2                  [m/s^3]
+    lat_delta      mean_k |y_t(s_k) - y_t-1(s_k)|                           [m]
+    heading_delta  mean_k |psi_t(s_k) - psi_t-1(s_k)|                       [rad]
+    lat_jerk       |a_lat,t - a_lat,t-1| / dt,  a_lat = v(0)^2 kappa(0)     [m/s^3]
+
+with dt = 0.25 s. A label has no value at tau = 0 or a heading at a point, so, the same for
+all rows: v(0) is the first label speed (the mean over the first 0.25 s), psi(s_k) the
+heading of the chord from point k to k+1 (19 values), kappa(0) = (psi(s_1) - psi(s_0)) / 1 m.
+Groups: the argmax of the SC-IMM posterior of the frame (Avoidance and Recovery merged),
+the same grouping for the three rows; a group's value is the mean over its frames.
+"""
+from __future__ import annotations
+
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from scimm import pathspeed
+from scimm.modes import AVOID, DECEL, MODES, RECOVER, TURN
+
+DT = 0.25  # frame period [s]
+METRICS = ("speed_delta", "speed_jerk", "lat_delta", "heading_delta", "lat_jerk")
+DISPLAY = {"speed_delta": "Speed delta [m/s]", "speed_jerk": "Speed jerk [m/s^3]", "lat_delta": "Lat delta [m]",
+           "heading_delta": "Heading delta [rad]", "lat_jerk": "Lat jerk [m/s^3]"}
+GROUPS = ("Cruise", "Turn", "Deceleration", "Avoidance/Recovery")
+ROWS = ("raw", "fixed", "scimm")
+ROW_NAMES = {"raw": "Original Raw Expert", "fixed": "Fixed-IMM", "scimm": "SC-IMM", "scimm-smooth": "SC-IMM smoothed"}
+# situation of harness.dataset -> the modes that mean it (the mode-meaning check)
+MEANING = {"junction_turn": (TURN,), "stopping": (DECEL,), "bypass": (AVOID, RECOVER)}
+
+
+def frame_metrics(path: np.ndarray, speed: np.ndarray, dt: float = DT) -> dict[str, np.ndarray]:
+    """The five metrics (T,) of one label sequence: path (T, 20, 2) [m], speed (T, 10) [m/s]."""
+    path, speed = np.asarray(path, dtype=float), np.asarray(speed, dtype=float)
+    T = len(speed)
+    psi = pathspeed.chord_headings(path)  # (T, 19)
+    v0 = speed[:, 0]
+    a_lat = v0 ** 2 * (psi[:, 1] - psi[:, 0]) / pathspeed.PATH_STEP
+    out = {m: np.full(T, np.nan) for m in METRICS}
+    if T >= 2:
+        out["speed_delta"][1:] = np.mean(np.abs(np.diff(speed, axis=0)), axis=1)
+        out["lat_delta"][1:] = np.mean(np.abs(np.diff(path[..., 1], axis=0)), axis=1)
+        out["heading_delta"][1:] = np.mean(np.abs(np.diff(psi, axis=0)), axis=1)
+        out["lat_jerk"][1:] = np.abs(np.diff(a_lat)) / dt
+    if T >= 3:
+        out["speed_jerk"][2:] = np.abs(v0[2:] - 2 * v0[1:-1] + v0[:-2]) / dt ** 2
+    return out
+
+
+def group_of(mu: np.ndarray) -> np.ndarray:
+    """(T,) group index into ``GROUPS`` of posteriors mu (T, 5): argmax, Avoidance/Recovery merged."""
+    return np.minimum(np.argmax(mu, axis=-1), len(GROUPS) - 1)
+
+
+def table2(episodes: Sequence[dict[str, dict[str, np.ndarray]]], rows: Sequence[str] = ROWS) -> pd.DataFrame:
+    """Table 2 from episodes, each {row name: {"path", "speed"}} plus "scimm" holding "mu".
+    Returns one line per (group, row): group, method, frames, and the metric means."""
+    per_row: dict[str, list[pd.DataFrame]] = {r: [] for r in rows}
+    for ep in episodes:
+        g = group_of(ep["scimm"]["mu"])
+        for r in rows:
+            df = pd.DataFrame(frame_metrics(ep[r]["path"], ep[r]["speed"]))
+            df["group"] = g
+            per_row[r].append(df)
+    lines = []
+    for gi, gname in enumerate(GROUPS):
+        for r in rows:
+            df = pd.concat(per_row[r], ignore_index=True)
+            sel = df[df["group"] == gi]
+            line = {"mode": gname, "method": ROW_NAMES[r], "frames": len(sel)}
+            line.update({m: float(sel[m].mean()) if sel[m].notna().any() else np.nan for m in METRICS})
+            lines.append(line)
+    return pd.DataFrame(lines, columns=["mode", "method", "frames", *METRICS])
+
+
+def format_table2(table: pd.DataFrame) -> str:
+    """Table 2 as aligned text, paper layout."""
+    head = f"{'Mode':19} {'Method':20} {'frames':>7} " + " ".join(f"{DISPLAY[m]:>19}" for m in METRICS)
+    lines = [head]
+    for _, r in table.iterrows():
+        lines.append(f"{r['mode']:19} {r['method']:20} {r['frames']:7d} "
+                     + " ".join(f"{r[m]:19.4g}" for m in METRICS))
+    return "\n".join(lines)
+
+
+def mode_meaning(situations: Sequence[np.ndarray], mus: dict[str, Sequence[np.ndarray]]) -> pd.DataFrame:
+    """Share of frames of each situation in ``MEANING`` whose dominant mode means it.
+
+    situations: per episode (T,) situation names; mus: {method: per episode (T, 5) posteriors}.
+    Returns one line per situation: situation, expected modes, frames, and a share per method."""
+    sit = np.concatenate(situations)
+    lines = []
+    for name, modes in MEANING.items():
+        sel = sit == name
+        line = {"situation": name, "modes": "/".join(MODES[m] for m in modes), "frames": int(sel.sum())}
+        for method, seq in mus.items():
+            dom = np.argmax(np.concatenate(seq), axis=-1)
+            line[method] = float(np.isin(dom[sel], modes).mean()) if sel.any() else np.nan
+        lines.append(line)
+    return pd.DataFrame(lines)
+
+
+def format_meaning(table: pd.DataFrame) -> str:
+    """The mode-meaning check as text: one line per situation, shares in percent per method."""
+    methods = [c for c in table.columns if c not in ("situation", "modes", "frames")]
+    lines = [f"{'situation':14} {'dominant mode should be':24} {'frames':>7} "
+             + " ".join(f"{ROW_NAMES.get(m, m):>16}" for m in methods)]
+    for _, r in table.iterrows():
+        lines.append(f"{r['situation']:14} {r['modes']:24} {r['frames']:7d} "
+                     + " ".join(f"{100 * r[m]:15.1f}%" for m in methods))
+    return "\n".join(lines)
+
+
+def situations(file: Path) -> np.ndarray:
+    """(T,) situation name of every frame of an episode file (harness.dataset.situation)."""
+    from harness.dataset import situation
+    with np.load(file, allow_pickle=False) as a:
+        df = pd.DataFrame({"cue_junction": a["cue_junction"], "command": a["command"],
+                           "target_speed": a["target_speed"], "v": a["v"], "cue_changed_route": a["cue_changed_route"]})
+    return df.apply(situation, axis=1).to_numpy(dtype=str) if len(df) else np.array([], dtype=str)
+
+
+def evaluate(data: Path, files: Sequence[Path], methods: Sequence[str] = ("fixed", "scimm")) -> tuple[pd.DataFrame, pd.DataFrame]:
+    """(Table 2, mode-meaning table) of the episode files against their written teachers
+    ``data/teacher/<method>/`` (scimm.teacher file contract)."""
+    from scimm.teacher import load_teacher
+    episodes, sits = [], []
+    for f in files:
+        with np.load(f, allow_pickle=False) as a:
+            ep = {"raw": {"path": a["path"], "speed": pathspeed.label_speeds(a["speed_wps"])}}
+        ep.update({m: load_teacher(data, m, f.stem) for m in methods})
+        episodes.append(ep)
+        sits.append(situations(f))
+    rows = ("raw", *methods)
+    mus = {m: [ep[m]["mu"] for ep in episodes] for m in methods}
+    return table2(episodes, rows), mode_meaning(sits, mus)

@@ -1,0 +1,141 @@
+"""Teacher signals of a dataset (SPEC §6.4, paper §III.2): run the Fixed-IMM or the SC-IMM over
+every episode and write the path teacher P^T, speed teacher V^T and mode posterior mu^T.
+
+Per episode: observations z_t = pathspeed.observe(labels of frame t) (paper eq. 2-3); cues
+s_t (scimm.cues) give A(s_t), gamma(s_t) (scimm.modes; Fixed-IMM: A = 0, gamma = 1), turned
+into Pi_t, Q_t by scimm.scene.conditioned (paper eq. 8-9; Pi_t, Q_t govern the step t-1 -> t);
+scimm.imm.imm_filter gives the fused state x_t^T (paper eq. 7) and mu_t; the teacher labels
+are pathspeed.state_path(x_t^T) and pathspeed.state_speeds(x_t^T). Every mode starts at the
+first observation with covariance P0.
+
+Episodes are batched: sorted by length, in groups of ``BATCH`` padded at the end with NaN
+observations (a NaN frame is a missing measurement and never influences earlier frames).
+
+File contract (read by the student, model/):
+``DIR/teacher/<method>/<episode stem>.npz`` with float32 ``path`` (T, 20, 2) [m, ego frame],
+``speed`` (T, 10) [m/s] at tau = 0.25, ..., 2.5 s, ``mu`` (T, 5) in ``modes.MODES`` order,
+row k = frame k of the episode; then ``DIR/teacher/<method>/manifest.json`` (method,
+parameters, dataset hash, episode count, created), written last and atomically: its
+presence means the folder is complete.
+"""
+from __future__ import annotations
+
+import datetime
+import hashlib
+import json
+import os
+from collections.abc import Callable, Sequence
+from pathlib import Path
+
+import numpy as np
+
+from scimm import pathspeed
+from scimm.cues import cue_vector
+from scimm.imm import imm_filter
+from scimm.modes import IMMConfig, fixed_adjustment, scene_adjustment
+from scimm.scene import conditioned
+
+METHODS = ("fixed", "scimm")
+BATCH = 16  # episodes per IMM batch
+
+
+def episode_files(data: Path) -> list[Path]:
+    """The dataset's episode files, sorted by name."""
+    return sorted((Path(data) / "episodes").glob("*.npz"))
+
+
+def dataset_hash(files: Sequence[Path]) -> str:
+    """sha1 over the episode names and sizes: changes when the dataset is re-collected."""
+    h = hashlib.sha1()
+    for f in files:
+        h.update(f"{f.name}:{f.stat().st_size};".encode())
+    return h.hexdigest()
+
+
+def load_inputs(file: Path) -> tuple[np.ndarray, np.ndarray]:
+    """(z (T, 5) observations, s (T, 16) cues) of one episode file."""
+    with np.load(file, allow_pickle=False) as a:
+        return pathspeed.observe(a["path"], a["speed_wps"]), cue_vector(a)
+
+
+def run_imm(z: np.ndarray, s: np.ndarray, method: str, cfg: IMMConfig) -> tuple[np.ndarray, np.ndarray]:
+    """Fused states x^T (B, T, 5) and mode posteriors mu (B, T, 5) of B padded sequences:
+    observations z (B, T, 5) (NaN rows = missing) and cues s (B, T, 16)."""
+    B, T, _ = z.shape
+    if method == "scimm":
+        A, gamma = scene_adjustment(s, cfg)
+    elif method == "fixed":
+        A, gamma = fixed_adjustment((B, T))
+    else:
+        raise ValueError(f"unknown method {method!r} (one of {', '.join(METHODS)})")
+    Pi, Q = conditioned(cfg.Pi0, cfg.Q0, A, gamma)
+    first = np.nan_to_num(z[:, 0])
+    x0 = np.broadcast_to(first[:, None, :], (B, 5, 5)).copy()
+    P0 = np.broadcast_to(cfg.P0, (5, 5, 5)).copy()
+    res = imm_filter(z, cfg.F, Q, cfg.R, x0, P0, Pi, cfg.mu0)
+    return res.x, res.mu
+
+
+def teach(files: Sequence[Path], method: str, cfg: IMMConfig,
+          progress: Callable[[int], None] | None = None) -> dict[str, dict[str, np.ndarray]]:
+    """Teacher labels {episode stem: {"path", "speed", "mu"}} (float32, contract shapes) of
+    the episode files, computed in length-sorted batches; ``progress(n)`` after each batch."""
+    inputs = {f.stem: load_inputs(f) for f in files}
+    stems = sorted(inputs, key=lambda k: len(inputs[k][0]))
+    out = {}
+    for lo in range(0, len(stems), BATCH):
+        group = stems[lo:lo + BATCH]
+        T = max(len(inputs[k][0]) for k in group)
+        z = np.full((len(group), T, 5), np.nan)
+        s = np.zeros((len(group), T, inputs[group[0]][1].shape[1]))
+        for b, k in enumerate(group):
+            n = len(inputs[k][0])
+            z[b, :n], s[b, :n] = inputs[k]
+        x, mu = run_imm(z, s, method, cfg)
+        for b, k in enumerate(group):
+            n = len(inputs[k][0])
+            out[k] = {"path": pathspeed.state_path(x[b, :n]).astype(np.float32),
+                      "speed": pathspeed.state_speeds(x[b, :n]).astype(np.float32),
+                      "mu": mu[b, :n].astype(np.float32)}
+        if progress:
+            progress(len(group))
+    return out
+
+
+def _atomic_write(path: Path, write: Callable[[Path], None]) -> None:
+    tmp = path.with_name(path.name + ".tmp")
+    write(tmp)
+    os.replace(tmp, path)
+
+
+def write_teacher(data: Path, method: str, labels: dict[str, dict[str, np.ndarray]], cfg: IMMConfig,
+                  files: Sequence[Path]) -> Path:
+    """Write ``DIR/teacher/<method>/`` (one npz per episode, then manifest.json last)."""
+    folder = Path(data) / "teacher" / method
+    folder.mkdir(parents=True, exist_ok=True)
+    manifest = folder / "manifest.json"
+    if manifest.exists():
+        manifest.unlink()  # the folder is incomplete until the new manifest is written
+    for stem, arrays in labels.items():
+        def write(tmp: Path, arrays=arrays) -> None:
+            with open(tmp, "wb") as fh:
+                np.savez(fh, **arrays)
+        _atomic_write(folder / f"{stem}.npz", write)
+    meta = {"method": method, "modes": ["Cruise", "Turn", "Deceleration", "Avoidance", "Recovery"],
+            "episodes": len(files), "dataset_hash": dataset_hash(files),
+            "created": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
+            "parameters": cfg.as_dict()}
+    _atomic_write(manifest, lambda tmp: tmp.write_text(json.dumps(meta, indent=1)))
+    return folder
+
+
+def is_complete(data: Path, method: str) -> bool:
+    """True if ``DIR/teacher/<method>/manifest.json`` exists (the folder is complete)."""
+    return (Path(data) / "teacher" / method / "manifest.json").is_file()
+
+
+def load_teacher(data: Path, method: str, stem: str) -> dict[str, np.ndarray]:
+    """The teacher arrays of one episode (contract shapes)."""
+    with np.load(Path(data) / "teacher" / method / f"{stem}.npz", allow_pickle=False) as a:
+        return {k: a[k] for k in a.files}
+

@@ -1,0 +1,248 @@
+"""Teacher signals (scimm.teacher, scimm.modes, scimm.cues), Table 2 metrics (scimm.table2)
+and the ``teacher`` CLI. Complements tests/test_imm.py with the scene-conditioned items of
+notes imm.md §2.5 (5, 6, 9, 10) on the project's own five-mode config."""
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from harness.cli import main
+from scimm import pathspeed as ps
+from scimm.cues import CUES, cue_vector
+from scimm.imm import imm_filter
+from scimm.modes import AVOID, DECEL, MODES, RECOVER, TURN, IMMConfig, scene_adjustment
+from scimm.scene import conditioned
+from scimm.table2 import frame_metrics, mode_meaning, table2
+from scimm.teacher import run_imm
+
+CUE_ARRAYS = ("command", "next_command", "cue_junction", "cue_curvature", "cue_curvature_change",
+              "cue_lateral_offset", "cue_lateral_change", "cue_speed", "cue_target_speed", "cue_speed_drop",
+              "flag_vehicle", "flag_leader", "flag_walker", "flag_light", "flag_stop",
+              "cue_changed_route", "cue_recovery")
+
+
+def synthetic_episode(T: int, turn: slice = slice(0, 0), seed: int = 0) -> dict[str, np.ndarray]:
+    """Arrays of a made-up episode: straight driving at ~8 m/s with small label noise, and
+    a left junction turn over frames ``turn``: command 1 inside a junction, the curvature at
+    the ego rising to 0.12/m and back (a triangle), as when driving through the turn."""
+    rng = np.random.default_rng(seed)
+    x = np.zeros((T, 5))
+    x[:, 1] = 0.0
+    n = len(range(T)[turn])
+    kappa = 0.12 * (1 - np.abs(np.linspace(-1, 1, n))) if n else np.zeros(0)
+    x[turn, 1] = kappa
+    x[:, 3] = 8.0
+    x[:, :3] += rng.normal(0, [0.01, 0.002, 0.0001], (T, 3))
+    speeds = ps.state_speeds(x) + rng.normal(0, 0.05, (T, 10))
+    dist = np.cumsum(speeds * ps.SPEED_DT, axis=1)
+    a = {"path": ps.state_path(x), "speed_wps": np.stack([dist, np.zeros_like(dist)], -1),
+         "v": np.full(T, 8.0), "target_speed": np.full(T, 8.0)}
+    for k in CUE_ARRAYS:
+        a[k] = np.zeros(T, dtype=bool if k.startswith("flag") else float)
+    a["command"] = np.full(T, 4)
+    a["next_command"] = np.full(T, 3)
+    a["command"][turn] = 1
+    a["cue_junction"][turn] = 1.0
+    a["cue_curvature"][turn] = kappa
+    a["cue_speed"] = a["v"].copy()
+    a["cue_target_speed"] = a["target_speed"].copy()
+    return a
+
+
+def test_cue_vector_reads_the_dataset_cues_in_order():
+    a = synthetic_episode(6, turn=slice(2, 4))
+    a["flag_leader"][5] = True  # a leader counts as a vehicle hazard
+    s = cue_vector(a)
+    assert s.shape == (6, len(CUES)) == (6, 16)
+    np.testing.assert_array_equal(s[:, CUES.index("command")], [4, 4, 1, 1, 4, 4])
+    np.testing.assert_array_equal(s[:, CUES.index("junction")], [0, 0, 1, 1, 0, 0])
+    np.testing.assert_array_equal(s[:, CUES.index("vehicle")], [0, 0, 0, 0, 0, 1])
+
+
+def test_zero_weights_and_fixed_method_are_the_fixed_imm_exactly():
+    a = synthetic_episode(40, turn=slice(10, 25))
+    z, s = ps.observe(a["path"], a["speed_wps"])[None], cue_vector(a)[None]
+    cfg = IMMConfig()
+    x_fixed, mu_fixed = run_imm(z, s, "fixed", cfg)
+    # the plain IMM with constant Pi0, Q0 (A = 0, gamma = 1 not even built)
+    x0 = np.broadcast_to(z[:, 0][:, None], (1, 5, 5))
+    plain = imm_filter(z, cfg.F, cfg.Q0, cfg.R, x0, np.broadcast_to(cfg.P0, (5, 5, 5)), cfg.Pi0, cfg.mu0)
+    # softmax(log Pi0) re-normalises Pi0: equal to rounding, 1e-12 is far above it
+    np.testing.assert_allclose(x_fixed, plain.x, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(mu_fixed, plain.mu, rtol=0, atol=1e-12)
+    zero = IMMConfig(W_A=np.zeros_like(cfg.W_A), W_gamma=np.zeros_like(cfg.W_gamma))
+    x_zero, mu_zero = run_imm(z, s, "scimm", zero)  # SC-IMM with A = 0, gamma = 1
+    np.testing.assert_array_equal(x_zero, x_fixed)
+    np.testing.assert_array_equal(mu_zero, mu_fixed)
+
+
+def test_scene_adjustment_is_stochastic_and_keeps_structural_zeros():
+    a = synthetic_episode(30, turn=slice(5, 20))
+    cfg = IMMConfig()
+    Pi0 = cfg.Pi0.copy()
+    Pi0[CRUISE_ROW := 0, RECOVER] = 0.0  # Cruise never goes straight to Recovery
+    Pi0[0] /= Pi0[0].sum()
+    A, gamma = scene_adjustment(cue_vector(a)[None], cfg)
+    A[..., RECOVER] += 50.0  # even a huge finite bonus
+    Pi, Q = conditioned(Pi0, cfg.Q0, A, gamma)
+    assert (Pi[..., CRUISE_ROW, RECOVER] == 0.0).all()
+    np.testing.assert_allclose(Pi.sum(axis=-1), 1.0, rtol=0, atol=1e-12)
+    assert (gamma > 0).all()
+    np.testing.assert_allclose(Q, gamma[..., None, None] * cfg.Q0, rtol=0, atol=0)
+
+
+def test_common_gamma_on_identical_modes_is_a_kalman_filter_with_scaled_noise():
+    rng = np.random.default_rng(3)
+    cfg = IMMConfig()
+    T = 30
+    z = rng.normal(size=(1, T, 5))
+    # well-conditioned unit-scale matrices: the reduction is structural, not about our units
+    F = np.broadcast_to(cfg.F[DECEL], (5, 5, 5))
+    Q0 = np.broadcast_to((lambda a: a @ a.T + 0.1 * np.eye(5))(0.3 * rng.normal(size=(5, 5))), (5, 5, 5))
+    R, P0 = 0.5 * np.eye(5), np.eye(5)
+    g = rng.uniform(0.5, 3.0, (1, T))  # the same gamma for every mode, varying in time
+    A = rng.normal(size=(1, T, 5, 5))  # any transitions: the modes cannot be told apart
+    Pi, Q = conditioned(cfg.Pi0, Q0, A, np.repeat(g[..., None], 5, axis=-1))
+    x0 = np.broadcast_to(z[:, 0][:, None], (1, 5, 5))
+    res = imm_filter(z, F, Q, R, x0, np.broadcast_to(P0, (5, 5, 5)), Pi, cfg.mu0)
+    x, P = z[0, 0].copy(), P0.copy()  # the Kalman filter, written out
+    for t in range(T):
+        x, P = F[0] @ x, F[0] @ P @ F[0].T + g[0, t] * Q0[0]
+        K = P @ np.linalg.inv(P + R)
+        x, P = x + K @ (z[0, t] - x), (np.eye(5) - K) @ P
+        np.testing.assert_allclose(res.x[0, t], x, rtol=0, atol=1e-12)  # Joseph vs simple form: rounding only
+    np.testing.assert_allclose(res.mu[0, -1], cfg.mu0 @ np.linalg.multi_dot(list(Pi[0])), atol=1e-12)
+
+
+def test_scene_conditioned_posterior_is_a_distribution_and_mode_permutation_permutes_it():
+    rng = np.random.default_rng(4)
+    a = synthetic_episode(60, turn=slice(20, 40))
+    cfg = IMMConfig()
+    z = ps.observe(a["path"], a["speed_wps"])[None]
+    A, gamma = scene_adjustment(cue_vector(a)[None], cfg)
+    Pi, Q = conditioned(cfg.Pi0, cfg.Q0, A, gamma)
+    x0 = np.broadcast_to(z[:, 0][:, None], (1, 5, 5))
+    P0 = np.broadcast_to(cfg.P0, (5, 5, 5))
+    res = imm_filter(z, cfg.F, Q, cfg.R, x0, P0, Pi, cfg.mu0)
+    assert (res.mu >= 0).all()
+    np.testing.assert_allclose(res.mu.sum(-1), 1.0, rtol=0, atol=1e-12)
+    assert (np.linalg.eigvalsh(res.P) > -1e-10 * np.trace(res.P, axis1=-2, axis2=-1)[..., None]).all()
+    p = rng.permutation(5)
+    per = imm_filter(z, cfg.F[p], Q[:, :, p], cfg.R, x0, P0, Pi[..., p, :][..., :, p], cfg.mu0[p])
+    np.testing.assert_allclose(per.mu, res.mu[..., p], rtol=0, atol=1e-12)
+    np.testing.assert_allclose(per.x, res.x, rtol=0, atol=1e-10)  # same sum, other order
+
+
+def test_turn_cues_make_turn_the_dominant_mode():
+    a = synthetic_episode(60, turn=slice(20, 40))
+    s, z = cue_vector(a)[None], ps.observe(a["path"], a["speed_wps"])[None]
+    _, mu = run_imm(z, s, "scimm", IMMConfig())
+    _, mu_fixed = run_imm(z, s, "fixed", IMMConfig())
+    dom, dom_fixed = mu[0].argmax(-1), mu_fixed[0].argmax(-1)
+    # the turn cues lift Turn on the turn frames (the very first has curvature 0 yet)
+    assert (dom[21:40] == TURN).mean() >= 0.9 > (dom_fixed[21:40] == TURN).mean()
+    assert (dom[45:] != TURN).all()
+
+
+def test_frame_metrics_on_a_hand_computed_sequence():
+    # three straight paths moving left 0.1 then 0.2 m; speeds 1, 2, 4 m/s everywhere
+    path = np.zeros((3, 20, 2))
+    path[..., 0] = np.arange(20)
+    path[1, :, 1], path[2, :, 1] = 0.1, 0.3
+    speed = np.array([1.0, 2.0, 4.0])[:, None] * np.ones((3, 10))
+    m = frame_metrics(path, speed)
+    np.testing.assert_allclose(m["speed_delta"], [np.nan, 1.0, 2.0])
+    np.testing.assert_allclose(m["speed_jerk"], [np.nan, np.nan, abs(4 - 2 * 2 + 1) / 0.25 ** 2])  # 16
+    np.testing.assert_allclose(m["lat_delta"], [np.nan, 0.1, 0.2], atol=1e-15)
+    np.testing.assert_allclose(m["heading_delta"], [np.nan, 0.0, 0.0])
+    np.testing.assert_allclose(m["lat_jerk"], [np.nan, 0.0, 0.0])
+    # straight at 2 m/s, then the chord headings 0.05 + 0.1 k (curvature 0.1/m): a_lat 0 -> 2^2 0.1
+    bent = path[:2].copy()
+    psi = 0.1 * (np.arange(19) + 0.5)
+    bent[1] = np.concatenate([[[0, 0]], np.cumsum(np.stack([np.cos(psi), np.sin(psi)], -1), 0)])
+    m = frame_metrics(bent, 2.0 * np.ones((2, 10)))
+    np.testing.assert_allclose(m["heading_delta"][1], 0.1 * 9.5)  # mean of 0.1 (k + 1/2), k = 0..18
+    np.testing.assert_allclose(m["lat_jerk"][1], 0.4 / 0.25)
+
+
+def test_table2_groups_by_the_scimm_mode_with_avoidance_and_recovery_merged():
+    path = np.zeros((4, 20, 2))
+    speed = np.array([0.0, 1.0, 1.0, 4.0])[:, None] * np.ones((4, 10))
+    mu = np.eye(5)[[TURN, TURN, AVOID, RECOVER]]
+    ep = {"raw": {"path": path, "speed": speed}, "scimm": {"path": path, "speed": speed, "mu": mu}}
+    t = table2([ep], rows=("raw", "scimm")).set_index(["mode", "method"])
+    # Turn frames 0, 1: speed delta defined at frame 1 only (1.0); A/R frames 2, 3: deltas 0 and 3
+    assert t.loc[("Turn", "SC-IMM"), "speed_delta"] == 1.0
+    assert t.loc[("Avoidance/Recovery", "Original Raw Expert"), "speed_delta"] == 1.5
+    assert t.loc[("Avoidance/Recovery", "SC-IMM"), "frames"] == 2
+    assert t.loc[("Avoidance/Recovery", "SC-IMM"), "speed_jerk"] == np.mean([1.0, 3.0]) / 0.0625
+    assert math.isnan(t.loc[("Cruise", "SC-IMM"), "speed_delta"])
+
+
+def test_mode_meaning_counts_the_matching_dominant_modes():
+    sit = np.array(["junction_turn", "junction_turn", "stopping", "bypass", "bypass", "cruise"])
+    mu = np.eye(5)[[TURN, 0, DECEL, RECOVER, TURN, 0]]
+    t = mode_meaning([sit], {"scimm": [mu]}).set_index("situation")
+    assert t.loc["junction_turn", "scimm"] == 0.5
+    assert t.loc["stopping", "scimm"] == 1.0
+    assert t.loc["bypass", "scimm"] == 0.5
+    assert t.loc["bypass", "modes"] == "Avoidance/Recovery"
+
+
+@pytest.fixture(scope="module")
+def dataset(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("data")
+    (folder / "episodes").mkdir()
+    for stem, T in (("0_rep0", 23), ("1_rep0", 41), ("2_rep0", 7)):
+        np.savez(folder / "episodes" / f"{stem}.npz", **synthetic_episode(T, turn=slice(5, 15), seed=T))
+    return folder
+
+
+def test_teacher_cli_writes_the_contract_files(dataset, capsys):
+    assert main(["teacher", "--data", str(dataset), "--method", "all"]) == 0
+    out = capsys.readouterr().out
+    assert "Original Raw Expert" in out and "junction_turn" in out
+    for method in ("fixed", "scimm"):
+        folder = dataset / "teacher" / method
+        for stem, T in (("0_rep0", 23), ("1_rep0", 41), ("2_rep0", 7)):
+            with np.load(folder / f"{stem}.npz") as f:
+                assert f["path"].shape == (T, 20, 2) and f["path"].dtype == np.float32
+                assert f["speed"].shape == (T, 10) and f["speed"].dtype == np.float32
+                assert f["mu"].shape == (T, 5) and f["mu"].dtype == np.float32
+                np.testing.assert_allclose(f["mu"].sum(-1), 1.0, atol=1e-6)  # float32 rounding
+        meta = json.loads((folder / "manifest.json").read_text())
+        assert meta["method"] == method and meta["episodes"] == 3 and meta["modes"] == list(MODES)
+        assert not list(folder.glob("*.tmp"))
+    table = pd.read_csv(dataset / "teacher" / "table2.csv")
+    assert len(table) == 4 * 3 and set(table["method"]) == {"Original Raw Expert", "Fixed-IMM", "SC-IMM"}
+
+
+def test_teacher_is_deterministic(dataset):
+    a = run_imm(*_inputs(dataset), "scimm", IMMConfig())
+    b = run_imm(*_inputs(dataset), "scimm", IMMConfig())
+    np.testing.assert_array_equal(a[0], b[0])
+
+
+def _inputs(folder):
+    with np.load(folder / "episodes" / "1_rep0.npz") as a:
+        return ps.observe(a["path"], a["speed_wps"])[None], cue_vector(a)[None]
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["teacher"], "--data DIR is required"),
+    (["teacher", "--data", "/nonexistent"], "not a dataset folder"),
+    (["teacher", "--data", ".", "--method", "kalman"], "invalid choice"),
+    (["teacher", "plot", "--data", "/nonexistent", "--episode", "0_rep0", "--out", "x.png"], "not a dataset folder"),
+    (["teacher", "plot", "--data", "DATA", "--episode", "9_rep9", "--out", "x.png"], "no episode '9_rep9'"),
+    (["teacher", "plot", "--data", "DATA", "--episode", "0_rep0", "--out", "x.jpg"], "must end in .png"),
+    (["teacher", "plot", "--data", "DATA", "--episode", "0_rep0"], "--out"),
+])
+def test_teacher_cli_bad_input_is_one_line_and_exit_2(argv, message, dataset, capsys):
+    argv = [str(dataset) if a == "DATA" else a for a in argv]
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("sumo-scimm: error: ") and message in err and err.count("\n") == 1

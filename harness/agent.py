@@ -68,6 +68,10 @@ class AutonomousAgent:
         """Called once per route with the --agent-config value (a path or None)."""
         self.config = config
 
+    def check_config(self, config: str | None) -> None:
+        """Called once by the CLI before any route runs: raise ValueError or OSError with a
+        one-line reason if ``config`` cannot work (e.g. a missing checkpoint)."""
+
     def sensors(self) -> list[dict]:
         return []
 
@@ -96,6 +100,11 @@ def validate_sensors(specs: list[dict]) -> None:
 BUILTIN_AGENTS = {
     "route_follower": "harness.route_follower:RouteFollower",
     "expert": "harness.expert:Expert",
+    "student": "model.agent:StudentAgent",  # --agent-config MODEL_CHECKPOINT (student.pt)
+    # the shipped students (model/checkpoints/<name>, made by sumo-scimm reproduce)
+    "baseline": "model.agent:BaselineStudent",
+    "fixed": "model.agent:FixedStudent",
+    "scimm": "model.agent:ScimmStudent",
 }
 DEFAULT_AGENT = "expert"  # the best agent that exists until a student ships
 

@@ -54,8 +54,9 @@ def _bare_step_ms(route, seed: int, log) -> float:
         world.close()
 
 
-def run_bench(routes_name: str = "town12_smoke", n_routes: int = 4, bev_frames: int = 2000) -> dict:
-    """Measure and return the figures (one process, one core)."""
+def run_bench(routes_name: str = "town12_smoke", n_routes: int = 4, bev_frames: int = 2000,
+              agent: str = "route_follower", agent_config: str | None = None) -> dict:
+    """Measure and return the figures (one process, one core) with ``agent`` driving."""
     _, routes = read_routes(resolve_set(routes_name))
     routes = routes[:n_routes]
     harness_ms, bare_ms, snaps = [], [], []
@@ -66,7 +67,7 @@ def run_bench(routes_name: str = "town12_smoke", n_routes: int = 4, bev_frames: 
             if f.tick % 50 == 0:
                 snaps.append((f.ego, f.snap, f.plan, f.lights, f.props))
 
-        res = run_episode(route, "route_follower", None, seed, on_frame=keep)
+        res = run_episode(route, agent, agent_config, seed, on_frame=keep)
         # the frame callback costs a list append every 50th tick: negligible
         harness_ms.append(1000 * res.loop_time / max(res.steps, 1))
         bare_ms.append(_bare_step_ms(route, seed, res.log))
@@ -77,7 +78,7 @@ def run_bench(routes_name: str = "town12_smoke", n_routes: int = 4, bev_frames: 
         renderer.render(ego, snap, plan, lights, props)
     bev_ms = 1000 * (time.perf_counter() - t0) / bev_frames
     h, b = float(np.mean(harness_ms)), float(np.mean(bare_ms))
-    return {"routes": f"{routes_name} (first {len(routes)})",
+    return {"routes": f"{routes_name} (first {len(routes)})", "agent": agent,
             "harness_step_ms": round(h, 3), "bare_libsumo_step_ms": round(b, 3),
             "harness_over_bare": round(h / b, 2) if b > 0 else math.nan,
             "bev_render_ms": round(bev_ms, 4), "bev_target_ms": 0.5}
@@ -85,7 +86,7 @@ def run_bench(routes_name: str = "town12_smoke", n_routes: int = 4, bev_frames: 
 
 def format_bench(r: dict) -> str:
     return "\n".join([
-        f"closed loop on {r['routes']}, reference agent, one process:",
+        f"closed loop on {r['routes']}, agent {r['agent']}, one process:",
         f"  harness step          {r['harness_step_ms']:8.3f} ms/tick",
         f"  bare libsumo step     {r['bare_libsumo_step_ms']:8.3f} ms/tick  (same traffic, ego replayed)",
         f"  harness / bare        {r['harness_over_bare']:8.2f} x",

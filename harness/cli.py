@@ -20,7 +20,7 @@ from harness.episode import AGENT_TIMEOUT
 
 EXIT_BAD_INPUT = 2
 # Modules of later stages with a ``register(subparsers)`` adding their subcommands.
-STAGE_CLIS = ("scimm.cli", "model.cli", "model.reproduce")
+STAGE_CLIS = ("scimm.cli", "model.cli", "model.reproduce", "model.bench_cli")
 
 
 class BadInput(Exception):
@@ -150,8 +150,17 @@ def _run(jobs: list, out: Path, args: argparse.Namespace, **kwargs) -> list[dict
         raise BadInput(str(exc)) from None
 
 
-def _eval(args: argparse.Namespace) -> int:
+def _check_agent(name: str, config: str | None) -> None:
+    """BadInput unless the agent loads and accepts its config."""
     from harness.agent import AgentLoadError, load_agent
+    try:
+        load_agent(name).check_config(config)
+    except (AgentLoadError, ValueError, OSError) as exc:
+        raise BadInput(str(exc)) from None
+
+
+def _eval(args: argparse.Namespace) -> int:
+    from harness.agent import load_agent
     from harness.runner import Job, route_seed, rss_summary
     from scenarios import resolve_set
     from scenarios.check import check_file
@@ -163,20 +172,20 @@ def _eval(args: argparse.Namespace) -> int:
         raise BadInput(f"{path}: {problems[0]} (run 'sumo-scimm routes check {path}')")
     if args.agent_config and not Path(args.agent_config).is_file():
         raise BadInput(f"--agent-config {args.agent_config!r} does not exist")
-    try:
-        load_agent(args.agent)
-    except AgentLoadError as exc:
-        raise BadInput(str(exc)) from None
-    _, routes = read_routes(path)
-    keep = set(_subset(args.routes_subset, [r.id for r in routes]))
-    routes = [r for r in routes if r.id in keep]
+    _check_agent(args.agent, args.agent_config)
+    _, all_routes = read_routes(path)
+    keep = set(_subset(args.routes_subset, [r.id for r in all_routes]))
+    routes = [r for r in all_routes if r.id in keep]
     if not routes:
         raise BadInput(f"--routes-subset {args.routes_subset!r} selects no route of {path.name}")
     out = Path(args.out) if args.out else Path("runs") / f"{path.stem}_{args.agent.replace(':', '.')}"
     if not args.resume and (out / "records.jsonl").exists() and (out / "records.jsonl").stat().st_size:
         raise BadInput(f"{out} already holds a run: add --resume to finish it, or choose another --out")
-    jobs = [Job(k, r, rep, args.agent, args.agent_config, route_seed(args.seed, k), str(out / "logs"), args.rules,
-                agent_timeout=args.agent_timeout)
+    # a route's seed depends on its place in the whole set, not in the subset, so that
+    # --routes-subset reruns a route exactly as the full run drove it
+    place = {r.id: i for i, r in enumerate(all_routes)}
+    jobs = [Job(k, r, rep, args.agent, args.agent_config, route_seed(args.seed, rep * len(all_routes) + place[r.id]),
+                str(out / "logs"), args.rules, agent_timeout=args.agent_timeout)
             for k, (rep, r) in enumerate((rep, r) for rep in range(args.repetitions) for r in routes)]
     checkpoint = Path(args.checkpoint) if args.checkpoint else out / "results.json"
     sensors = [s["type"] for s in load_agent(args.agent).sensors()]
@@ -197,7 +206,6 @@ def _eval(args: argparse.Namespace) -> int:
 
 
 def _render(args: argparse.Namespace) -> int:
-    from harness.agent import AgentLoadError, load_agent
     from harness.render import render_route
     from harness.runner import route_seed
     from scenarios import resolve_set
@@ -209,27 +217,10 @@ def _render(args: argparse.Namespace) -> int:
         raise BadInput(f"route {args.route!r} is not in {path.name} (ids {ids[0]}..{ids[-1]})")
     if not args.out.endswith(".mp4"):
         raise BadInput(f"--out {args.out!r} must end in .mp4 (a PNG of the path is written beside it)")
-    try:
-        load_agent(args.agent)
-    except AgentLoadError as exc:
-        raise BadInput(str(exc)) from None
+    _check_agent(args.agent, args.agent_config)
     k = ids.index(args.route)
     res, png = render_route(routes[k], args.agent, args.agent_config, route_seed(args.seed, k), Path(args.out))
     print(f"route {args.route}: {res.status}, RC {res.rc:.2f}, {res.game_time:.1f} s -> {args.out}, {png}")
-    return 0
-
-
-def _bench(args: argparse.Namespace) -> int:
-    from harness.bench import bench_json, format_bench, run_bench
-    if args.routes_count < 1:
-        raise BadInput("--routes-count must be >= 1")
-    r = run_bench(args.routes, args.routes_count)
-    print(format_bench(r))
-    from scimm.bench import format_imm_bench, run_imm_bench  # the CLI is the one place that sees every stage
-    r["teacher"] = run_imm_bench()
-    print(format_imm_bench(r["teacher"]))
-    if args.json:
-        Path(args.json).write_text(bench_json(r) + "\n")
     return 0
 
 
@@ -395,13 +386,7 @@ def build_parser() -> argparse.ArgumentParser:
     dshow.add_argument("dir")
     dshow.set_defaults(func=_data_show)
 
-    bn = sub.add_parser("bench", help="performance figures beside their references (SPEC §11)")
-    bn.add_argument("--routes", default="town12_smoke", help="route set to time (default town12_smoke)")
-    bn.add_argument("--routes-count", type=int, default=4, help="routes of the set to run (default 4)")
-    bn.add_argument("--json", help="also write the figures as JSON to this file")
-    bn.set_defaults(func=_bench)
-
-    # Later stages add their own subcommands (teacher, train, reproduce): the CLI is the one
+    # Later stages add their own subcommands (teacher, train, reproduce, bench): the CLI is the one
     # place that sees every stage, so it imports them here by name and nowhere else.
     for name in STAGE_CLIS:
         importlib.import_module(name).register(sub)

@@ -219,8 +219,14 @@ class HazardActor:
             legs = [g.edge for g in self.plan.path.legs]
             vid = f"{self.tag}_leader"
             libsumo.route.add(f"r_{vid}", legs[legs.index(edge):])
-            libsumo.vehicle.add(vid, f"r_{vid}", typeID="hazard", departLane=str(lane),
-                                departPos=f"{pos:.2f}", departSpeed=f"{max(ego_speed, 3.0):.2f}")
+            try:
+                libsumo.vehicle.add(vid, f"r_{vid}", typeID="hazard", departLane=str(lane),
+                                    departPos=f"{pos:.2f}", departSpeed=f"{max(ego_speed, 3.0):.2f}")
+            except libsumo.TraCIException:
+                # an ego faster than the leader's own desired speed (a student can be): SUMO
+                # refuses that departure speed, so the leader starts at its desired speed
+                libsumo.vehicle.add(vid, f"r_{vid}", typeID="hazard", departLane=str(lane),
+                                    departPos=f"{pos:.2f}", departSpeed="desired")
             libsumo.vehicle.setLaneChangeMode(vid, 0)
             self.leader = vid
         elif t == "ParkingCutIn":

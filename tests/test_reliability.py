@@ -187,6 +187,15 @@ def test_sigint_then_resume_finishes_the_run_as_an_uninterrupted_one(tmp_path, c
     with np.load(clean / "logs" / "0_rep0.npz") as a, np.load(other / "logs" / "0_rep0.npz") as b:
         n = min(len(a["x"]), len(b["x"]))
         assert not np.array_equal(a["x"][:n], b["x"][:n])
+    # ... while --routes-subset reruns a route exactly as the full run drove it (its seed
+    # comes from its place in the whole set)
+    alone = tmp_path / "alone"
+    assert main(["eval", "--routes", "town12_smoke", "--routes-subset", "2", "--agent", "route_follower",
+                 "--workers", "1", "--out", str(alone)]) == 0
+    with np.load(clean / "logs" / "2_rep0.npz") as a, np.load(alone / "logs" / "2_rep0.npz") as b:
+        assert sorted(a.files) == sorted(b.files)
+        for name in a.files:
+            np.testing.assert_array_equal(a[name], b[name], err_msg=name)  # NaN == NaN here
 
 
 def test_rss_summary_from_worker_samples(tmp_path):

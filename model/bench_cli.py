@@ -1,0 +1,92 @@
+"""``sumo-scimm bench``: every performance figure of SPEC §11, each beside its reference
+measured in the same run, printed as a table and optionally written as JSON.
+
+- closed loop (``harness.bench``): harness step with the chosen agent against bare libsumo
+  stepping of the same traffic with the ego replayed, plus the agent's bare inference
+  time when it is a student; BEV render;
+- teacher (``scimm.bench``): batched IMM frames per second on one core against filterpy's
+  IMMEstimator on the same sequences, and the largest difference between them;
+- student (``model.bench``): training samples per second on 2 threads, inference ms per
+  frame at batch 1 on one thread;
+- with ``--eval``: wall time of a whole ``town12_short`` evaluation on 2 workers with the
+  agent, and the worker memory (RSS) over it.
+
+Figures are for reading, never asserted in a test; they depend on the machine's load.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import tempfile
+import time
+from pathlib import Path
+
+EVAL_TARGET_S, OVERHEAD_TARGET, RSS_TARGET_MB = 180.0, 2.0, 800.0
+
+
+def _eval_figures(agent: str, agent_config: str | None, workers: int) -> dict:
+    from harness.cli import main
+    from harness.runner import rss_summary
+    with tempfile.TemporaryDirectory(prefix="sumo-scimm-bench-") as tmp:
+        argv = ["eval", "--routes", "town12_short", "--agent", agent, "--workers", str(workers), "--out", tmp + "/run"]
+        t0 = time.perf_counter()
+        if main(argv + (["--agent-config", agent_config] if agent_config else [])) != 0:
+            raise RuntimeError("the town12_short evaluation failed")
+        wall = time.perf_counter() - t0
+        return {"eval_wall_s": round(wall, 1), "eval_workers": workers, "eval_target_s": EVAL_TARGET_S,
+                "rss": rss_summary(Path(tmp) / "run"), "rss_target_mb": RSS_TARGET_MB}
+
+
+def _bench(args: argparse.Namespace) -> int:
+    from harness.agent import AgentLoadError, load_agent
+    from harness.bench import format_bench, run_bench
+    from harness.cli import BadInput
+    from model.bench import format_student_bench, run_student_bench
+    from scimm.bench import format_imm_bench, run_imm_bench
+    if args.routes_count < 1 or args.workers < 1:
+        raise BadInput("--routes-count and --workers must be >= 1")
+    try:
+        load_agent(args.agent)
+    except AgentLoadError as exc:
+        raise BadInput(str(exc)) from None
+    r: dict = {"closed_loop": run_bench(args.routes, args.routes_count, agent=args.agent,
+                                       agent_config=args.agent_config)}
+    r["teacher"] = run_imm_bench()
+    r["student"] = run_student_bench()
+    loop = r["closed_loop"]
+    learned = args.agent not in ("route_follower", "expert")
+    infer = r["student"]["infer_ms_per_frame"] if learned else 0.0
+    loop["bare_inference_ms"] = round(infer, 3)
+    loop["harness_over_bare_plus_inference"] = round(
+        loop["harness_step_ms"] / (loop["bare_libsumo_step_ms"] + infer), 2)
+    print(format_bench(loop))
+    print(f"  harness / (bare + inference) {loop['harness_over_bare_plus_inference']:.2f} x  "
+          f"(inference {infer:.2f} ms; target <= {OVERHEAD_TARGET:g} x)")
+    print(format_imm_bench(r["teacher"]))
+    print(format_student_bench(r["student"]))
+    if args.eval:
+        r["eval"] = _eval_figures(args.agent, args.agent_config, args.workers)
+        e, rss = r["eval"], r["eval"]["rss"] or {}
+        print(f"town12_short eval      {e['eval_wall_s']:8.1f} s on {e['eval_workers']} workers "
+              f"(target <= {EVAL_TARGET_S:g} s)")
+        if rss:
+            print(f"worker memory          peak {rss['peak_mb']:.0f} MB, growth {rss['growth_mb']:+.1f} MB over "
+                  f"{rss['max_routes_per_worker']} routes (target <= {RSS_TARGET_MB:g} MB, flat)")
+    if args.json:
+        tmp = Path(args.json + ".tmp")
+        tmp.write_text(json.dumps(r, indent=2) + "\n")
+        tmp.replace(args.json)
+    return 0
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    """Add ``sumo-scimm bench``."""
+    bn = sub.add_parser("bench", help="performance figures beside their references (SPEC §11)")
+    bn.add_argument("--routes", default="town12_smoke", help="route set of the per-tick figures (default town12_smoke)")
+    bn.add_argument("--routes-count", type=int, default=4, help="routes of the set to run (default 4)")
+    bn.add_argument("--agent", default="route_follower", help="agent of the closed-loop figures (default route_follower)")
+    bn.add_argument("--agent-config", help="the agent's config (a student's checkpoint)")
+    bn.add_argument("--eval", action="store_true", help="also time a whole town12_short evaluation")
+    bn.add_argument("--workers", type=int, default=2, help="workers of the --eval run (default 2)")
+    bn.add_argument("--json", help="also write the figures as JSON to this file")
+    bn.set_defaults(func=_bench)

@@ -1,0 +1,86 @@
+"""Student model checkpoints: weights + architecture config + manifest, one small file.
+
+File layout (``torch.save`` of plain containers only, so it loads with
+``torch.load(weights_only=True)``, which refuses any pickle that would run code)::
+
+    {"format": FORMAT, "state_dict": {name: tensor}, "config": NetConfig as dict,
+     "manifest": {data hash, teacher, seed, git commit, epochs, final losses, ...}}
+
+The manifest is also written beside it as ``manifest.json`` for people. Files are written
+to a temporary name, then renamed, so a killed save never leaves a half-written file.
+"""
+from __future__ import annotations
+
+import json
+import pickle
+import subprocess
+import zipfile
+from pathlib import Path
+
+import torch
+
+from harness.cli import BadInput
+from model.network import NetConfig, Student
+
+FORMAT = "sumo-scimm-student/1"
+WEIGHTS_NAME = "student.pt"  # file name inside a training's --out folder
+
+
+def git_commit() -> str:
+    """The project's git commit (with '-dirty' for uncommitted changes), or 'unknown'."""
+    root = Path(__file__).resolve().parent.parent
+    try:
+        head = subprocess.run(["git", "rev-parse", "HEAD"], cwd=root, capture_output=True, text=True,
+                              check=True, timeout=10).stdout.strip()
+        dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"], cwd=root,
+                               capture_output=True, text=True, check=True, timeout=10).stdout.strip()
+    except (OSError, subprocess.SubprocessError):
+        return "unknown"
+    return head + ("-dirty" if dirty else "")
+
+
+def save_checkpoint(path: Path, model: Student, manifest: dict) -> Path:
+    """Write model weights, config and manifest to ``path`` and manifest.json beside it."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    blob = {"format": FORMAT, "state_dict": {k: v.detach().clone() for k, v in model.state_dict().items()},
+            "config": model.cfg.to_dict(), "manifest": manifest}
+    tmp = path.with_name(path.name + ".tmp")
+    torch.save(blob, tmp)
+    tmp.replace(path)
+    mtmp = path.with_name("manifest.json.tmp")
+    mtmp.write_text(json.dumps(manifest, indent=2, sort_keys=True))
+    mtmp.replace(path.with_name("manifest.json"))
+    return path
+
+
+def resolve(path: str | Path) -> Path:
+    """A model checkpoint file, or a training --out folder holding student.pt."""
+    p = Path(path)
+    return p / WEIGHTS_NAME if p.is_dir() else p
+
+
+def load_checkpoint(path: str | Path) -> tuple[Student, dict]:
+    """(model in eval mode, manifest); BadInput (one line) for a missing, corrupt or unsafe file."""
+    p = resolve(path)
+    if not p.is_file():
+        raise BadInput(f"model checkpoint {p} not found (train one with 'sumo-scimm train --data DIR --out DIR')")
+    try:
+        blob = torch.load(p, map_location="cpu", weights_only=True)
+    except pickle.UnpicklingError as exc:
+        first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+        raise BadInput(f"model checkpoint {p} refused: it holds Python objects that weights_only loading does "
+                       f"not allow and could run code ({first[:120]}); use a file written by 'sumo-scimm train'") from None
+    except (RuntimeError, EOFError, OSError, ValueError, zipfile.BadZipFile) as exc:
+        raise BadInput(f"model checkpoint {p} is corrupt or not a torch file ({type(exc).__name__}); "
+                       f"retrain with 'sumo-scimm train'") from None
+    if not isinstance(blob, dict) or blob.get("format") != FORMAT:
+        raise BadInput(f"model checkpoint {p} is not a {FORMAT} file; use a file written by 'sumo-scimm train'")
+    try:
+        model = Student(NetConfig(**blob["config"]))
+        model.load_state_dict(blob["state_dict"])
+    except (KeyError, TypeError, ValueError, RuntimeError) as exc:
+        raise BadInput(f"model checkpoint {p} does not match the student network ({type(exc).__name__}: "
+                       f"{str(exc).splitlines()[0][:120]}); retrain with 'sumo-scimm train'") from None
+    model.eval()
+    return model, dict(blob.get("manifest", {}))

@@ -1,0 +1,117 @@
+"""SimLingo's controller (controller.simlingo) with hand-computed values, and the student
+agent's plumbing (checkpoint in, Control and Prediction out)."""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+import torch
+
+from controller.pid import LAT_KI, LAT_KP, SPEED_KD, SPEED_KI, SPEED_KP
+from controller.simlingo import CREEP_TICKS, STUCK_TICKS, SimLingoController, desired_speed, resample_path
+from controller.vehicle import Control
+from harness.agent import Prediction, load_agent
+
+STRAIGHT = np.stack([np.arange(20.0), np.zeros(20)], 1)  # 0..19 m straight ahead
+
+
+def wps_at(speed: float) -> np.ndarray:
+    """Speed waypoints (10, 2) of a constant speed [m/s] straight ahead: x = v (k + 1) 0.25 s."""
+    return np.stack([speed * 0.25 * np.arange(1, 11), np.zeros(10)], 1)
+
+
+def line(angle_deg: float) -> np.ndarray:
+    a = math.radians(angle_deg)
+    s = np.arange(20.0)
+    return np.stack([s * math.cos(a), s * math.sin(a)], 1)
+
+
+def test_desired_speed_is_twice_the_distance_from_the_first_to_the_third_waypoint():
+    wps = np.zeros((10, 2))
+    wps[0], wps[2] = (1.0, 0.0), (4.0, 4.0)  # 5 m apart
+    assert desired_speed(wps) == pytest.approx(10.0)
+    assert desired_speed(wps_at(6.0)) == pytest.approx(6.0)
+
+
+def test_straight_path_at_the_current_speed_gives_zero_steer_and_steady_throttle():
+    c = SimLingoController()
+    controls = [c.step(STRAIGHT, wps_at(5.0), 5.0) for _ in range(30)]
+    # zero speed error: the PID's window of zeros stays zero; the vehicle model keeps speed
+    # below 0.3 throttle, so 0 is the steady cruise command
+    assert all(ctl == Control(0.0, 0.0, 0.0) for ctl in controls)
+
+
+def test_speed_pid_values_by_hand():
+    c = SimLingoController()
+    first = c.step(STRAIGHT, wps_at(5.0), 4.5)  # error 0.5 m/s
+    # Kp e + Ki mean(window of 20: one 0.5) + Kd (0.5 - 0) = 0.875 + 0.025 + 1.0 -> clipped to 1
+    assert first.throttle == 1.0 and first.brake == 0.0
+    second = c.step(STRAIGHT, wps_at(5.0), 4.5)
+    assert second.throttle == pytest.approx(SPEED_KP * 0.5 + SPEED_KI * 1.0 / 20 + SPEED_KD * 0.0)  # 0.925
+    big = SimLingoController().step(STRAIGHT, wps_at(8.0), 2.0)  # error clipped to 1 m/s
+    assert big.throttle == 1.0
+
+
+@pytest.mark.parametrize("angle, sign", [(9.0, -1.0), (-9.0, 1.0)])
+def test_a_path_bending_to_one_side_steers_to_that_side(angle, sign):
+    # a line at +9 deg (to the left, y > 0): the lookahead point (2.4 m at rest) lies at 9 deg,
+    # error = -9/90 = -0.1; first step: (Kp + Ki) * error (derivative 0, window mean = error)
+    c = SimLingoController()
+    ctl = c.step(line(angle), wps_at(0.0), 0.0)
+    assert ctl.steer == round(sign * (LAT_KP + LAT_KI) * 0.1, 3) == sign * 0.376  # steer > 0 = right
+    assert c.step(line(angle), wps_at(0.0), 0.0).steer == ctl.steer  # same error, zero derivative
+
+
+def test_lookahead_grows_with_speed():
+    # a path straight for 5 m, then at 90 deg to the left: at rest the 2.4 m point is on the
+    # straight part (zero steer); at 50 km/h the lookahead is 5.07 m, past the corner
+    path = np.vstack([STRAIGHT[:6], np.stack([np.full(14, 5.0), np.arange(1.0, 15.0)], 1)])
+    assert SimLingoController().step(path, wps_at(0.0), 0.0).steer == 0.0
+    assert SimLingoController().step(path, wps_at(50 / 3.6), 50 / 3.6).steer < 0.0
+
+
+@pytest.mark.parametrize("desired, speed, brake", [
+    (0.39, 0.0, True), (0.41, 0.0, False),  # desired below 0.4 m/s
+    (5.0, 5.55, True), (5.0, 5.45, False),  # speed / desired above 1.1
+])
+def test_brake_rule(desired, speed, brake):
+    ctl = SimLingoController().step(STRAIGHT, wps_at(desired), speed)
+    assert (ctl.brake == 1.0) == brake
+    if brake:
+        assert ctl.throttle == 0.0
+    if not brake and speed == 0.0:
+        assert ctl.throttle > 0.0
+
+
+def test_creep_after_forty_seconds_standing():
+    c = SimLingoController()
+    stopped = [c.step(STRAIGHT, wps_at(0.0), 0.0) for _ in range(STUCK_TICKS)]
+    assert all(ctl.brake == 1.0 for ctl in stopped)
+    creep = [c.step(STRAIGHT, wps_at(0.0), 0.0) for _ in range(CREEP_TICKS)]
+    assert all(ctl.throttle == 0.4 and ctl.brake == 0.0 for ctl in creep)
+    assert c.step(STRAIGHT, wps_at(0.0), 0.0).brake == 1.0  # back to the network's command
+
+
+def test_resample_path_every_tenth_of_a_metre_from_the_origin():
+    pts = resample_path(np.array([[0.0, 0.0], [0.0, 1.0]]))  # 1 m to the left
+    np.testing.assert_allclose(pts, np.stack([np.zeros(10), np.arange(1, 11) * 0.1], 1), atol=1e-12)
+    np.testing.assert_array_equal(resample_path(np.zeros((20, 2))), [[0.0, 0.0]])  # degenerate
+
+
+def test_student_agent_returns_a_control_and_its_waypoints(tmp_path):
+    from model.checkpoint import save_checkpoint
+    from model.network import NetConfig, Student
+    torch.manual_seed(0)
+    ckpt = save_checkpoint(tmp_path / "student.pt", Student(NetConfig()), {})
+    agent = load_agent("student")
+    agent.setup(str(ckpt))
+    assert sorted(s["type"] for s in agent.sensors()) == ["bev", "speed", "target_point"]
+    bev = np.zeros((9, 64, 64), np.uint8)
+    control, pred = agent.run_step({"bev": bev, "target_point": np.array([12.0, 0.0]), "speed": 3.0}, 0.05)
+    assert isinstance(control, Control) and control.is_finite() and isinstance(pred, Prediction)
+    assert pred.path.shape == (20, 2) and pred.speed_wps.shape == (10, 2)
+    path, wps = agent.predict(bev, np.array([12.0, 0.0]), 3.0)
+    np.testing.assert_array_equal(path, pred.path)  # inference is deterministic
+    with pytest.raises(ValueError, match="agent-config"):
+        load_agent("student").setup(None)

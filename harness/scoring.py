@@ -107,6 +107,8 @@ def rescore(record: dict, rules: str = "lb2.0") -> dict:
         inf, rc = record["infractions"], float(record["scores"]["score_route"])
     except (KeyError, TypeError, ValueError) as exc:
         raise ScoreError(f"record {record.get('route_id', '?')}: missing {exc}") from None
+    if not isinstance(inf, dict) or not all(isinstance(v, list) for v in inf.values()):
+        raise ScoreError(f"record {record.get('route_id', '?')}: 'infractions' must map each key to a list of messages")
     penalty = infraction_penalty(inf, rules)
     out = dict(record)
     out["scores"] = {"score_route": round(rc, 6), "score_penalty": round(penalty, 6),

@@ -165,6 +165,11 @@ def test_score_rejects_what_is_not_a_results_file(tmp_path, capsys):
     assert "not a Leaderboard results file" in capsys.readouterr().err
     bad.write_text("{nope")
     assert main(["score", str(bad)]) == 2
+    # an infraction "list" that is a string would count its characters as messages
+    bad.write_text(json.dumps({"_checkpoint": {"progress": [1, 1], "records": [
+        {"route_id": "r", "infractions": {"red_light": "abc"}, "scores": {"score_route": 100}}]}}))
+    assert main(["score", str(bad)]) == 2
+    assert "must map each key to a list" in capsys.readouterr().err
 
 
 def test_rescoring_is_idempotent():

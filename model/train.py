@@ -79,6 +79,8 @@ class TrainConfig:
             raise BadInput(f"--teacher must be none, fixed or scimm, got {self.teacher!r}")
         if self.epochs < 1:
             raise BadInput(f"--epochs must be >= 1, got {self.epochs}")
+        if self.seed < 0:
+            raise BadInput(f"--seed must be >= 0, got {self.seed}")
         if self.threads < 1:
             raise BadInput(f"threads must be >= 1, got {self.threads}")
 

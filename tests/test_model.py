@@ -316,3 +316,14 @@ def test_an_epoch_draws_every_moving_frame_once_and_thins_standing_frames(tmp_pa
     # binomial(100, KEEP_STAY <= 0.5): sd <= 5; a 4-sd band
     assert abs(standing - 100 * KEEP_STAY) < 20
     assert set(np.unique(views)) <= {0, 1} and ((cuts == 0) | ((cuts >= 4) & (cuts <= 30))).all()
+
+
+@pytest.mark.parametrize("option,value,message", [("--seed", "-1", "--seed must be >= 0"),
+                                                  ("--epochs", "0", "--epochs must be >= 1")])
+def test_bad_training_options_are_one_line_and_write_nothing(tmp_path, capsys, option, value, message):
+    fake_dataset(tmp_path / "data")
+    out = tmp_path / "model"
+    assert main(["train", "--data", str(tmp_path / "data"), "--out", str(out), option, value]) == 2
+    err = capsys.readouterr().err
+    assert message in err and "Traceback" not in err and len(err.strip().splitlines()) == 1
+    assert not out.exists()

@@ -155,8 +155,11 @@ def test_sigint_then_resume_finishes_the_run_as_an_uninterrupted_one(tmp_path, c
     out = tmp_path / "run"
     cmd = [sys.executable, "-m", "harness.cli", "eval", "--routes", "town12_smoke", "--agent", "route_follower",
            "--workers", "2", "--out", str(out)]
+    # Ctrl-C as in a terminal: SIGINT at its default even when this test itself runs in a
+    # background job, where the shell starts every process with SIGINT ignored
     proc = subprocess.Popen(cmd, start_new_session=True, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                            env={**os.environ, "PYTHONPATH": str(ROOT)}, text=True)
+                            env={**os.environ, "PYTHONPATH": str(ROOT)}, text=True,
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     rec = out / "records.jsonl"
     deadline = time.time() + 180
     while time.time() < deadline and not (rec.exists() and rec.read_text().count("\n") >= 1):

@@ -327,3 +327,14 @@ def test_bad_training_options_are_one_line_and_write_nothing(tmp_path, capsys, o
     err = capsys.readouterr().err
     assert message in err and "Traceback" not in err and len(err.strip().splitlines()) == 1
     assert not out.exists()
+
+
+def test_eval_refuses_a_corrupt_checkpoint_before_any_route_runs(tmp_path, capsys):
+    bad = tmp_path / "student.pt"
+    bad.write_bytes(b"not a torch file")
+    out = tmp_path / "run"
+    assert main(["eval", "--routes", "town12_smoke", "--agent", "student", "--agent-config", str(bad),
+                 "--workers", "1", "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert f"model checkpoint {bad}" in err and len(err.strip().splitlines()) == 1
+    assert not out.exists()

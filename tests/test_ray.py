@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 
 from harness.cli import main
+from tests.test_reliability import _without_wall_clock
 
 pytest.importorskip("ray", reason="ray is not installed (pip install 'sumo-scimm[ray]'): "
                                   "the Ray backend cannot be tested")
@@ -22,13 +23,6 @@ KEYS = ["0_rep0", "1_rep0", "2_rep0", "3_rep0"]
 def _records(out: Path) -> dict[str, dict]:
     recs = [json.loads(line) for line in (out / "records.jsonl").read_text().splitlines()]
     return {r["key"]: r for r in recs}
-
-
-def _without_wall_clock(rec: dict) -> dict:
-    rec = dict(rec)
-    rec.pop("wall_time")
-    rec["lb"] = {**rec["lb"], "meta": {**rec["lb"]["meta"], "duration_system": None}}
-    return rec
 
 
 def test_ray_records_and_logs_equal_the_local_backends(tmp_path, capsys):

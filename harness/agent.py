@@ -11,7 +11,8 @@ Sensors an agent may declare (``{"type": ..., "id": ...}``):
 | --- | --- |
 | ``speed`` | ego speed [m/s] |
 | ``pose`` | world (x, y, yaw): m, m, rad CCW from +x (as GNSS + compass) |
-| ``target_point`` | next sparse route point >= 7.5 m ahead, ego frame (x fwd, y left) [m] |
+| ``target_point`` | next sparse route point >= 7.5 m ahead (past the route end: 7.5 m ahead on |
+|  | its straight run-on, harness.plan), ego frame (x fwd, y left) [m] |
 | ``command`` | RoadOption of the route at the ego (1 left, 2 right, 3 straight, 4 follow lane) |
 | ``bev`` | ego-centred BEV raster, uint8 (C, H, W) (harness.bev) |
 | ``world`` | privileged, for the expert: ``(snapshot, lights, props)``: every actor within |

@@ -95,7 +95,7 @@ class Recorder:
         snap = f.snap
         self.frames.append({
             "tick": f.tick, "path": _resample_path(pts),
-            "target_point": to_ego(plan.xy[plan.target_point(i)], e.x, e.y, e.yaw),
+            "target_point": to_ego(plan.target_xy(i), e.x, e.y, e.yaw),
             "command": int(plan.command[i]),
             "next_command": _DIRECTION_TO_OPTION.get(nxt.direction, LANEFOLLOW) if nxt else LANEFOLLOW,
             "target_speed": target, **{f"flag_{k}": bool(flags.get(k, False)) for k in FLAGS},

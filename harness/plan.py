@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 import sumolib
@@ -20,6 +21,7 @@ LEFT, RIGHT, STRAIGHT, LANEFOLLOW = 1, 2, 3, 4
 _DIRECTION_TO_OPTION = {"l": LEFT, "L": LEFT, "t": LEFT, "r": RIGHT, "R": RIGHT, "s": STRAIGHT}
 SPARSE_STEP = 50.0  # sparse points at least every 50 m, as CARLA's route downsampling [m]
 TARGET_MIN = 7.5  # the target point is the next sparse point at least this far ahead [m]
+END_PAD = 20.0  # the route sensors (BEV ROUTE channel, target point) run on this far past the end [m]
 
 
 @dataclass(frozen=True)
@@ -41,10 +43,25 @@ class GlobalPlan:
     def length(self) -> float:
         return float(self.s[-1])
 
-    def target_point(self, progress: int) -> int:
-        """Index of the target point: first sparse point >= 7.5 m past dense index ``progress``."""
+    def target_xy(self, progress: int) -> np.ndarray:
+        """Target point (2,) world [m]: the first sparse point >= TARGET_MIN past dense index
+        ``progress``; near the end, the point TARGET_MIN ahead on the straight run-on past
+        the last point (``shown_xy``), so the target never comes closer than TARGET_MIN."""
         ahead = self.sparse[self.s[self.sparse] >= self.s[progress] + TARGET_MIN]
-        return int(ahead[0]) if len(ahead) else len(self.s) - 1
+        if len(ahead):
+            return self.xy[int(ahead[0])]
+        extra = min(self.s[progress] + TARGET_MIN - self.length, END_PAD)
+        return self.xy[-1] + extra * np.array([math.cos(self.yaw[-1]), math.sin(self.yaw[-1])])
+
+    @cached_property
+    def shown_xy(self) -> np.ndarray:
+        """(N + 20, 2) world [m]: the dense route and, 1 m apart, END_PAD m straight on past
+        its last point along the last heading. The route sensors show this, so the end of a
+        route never looks like a place to stop (PDM-Lite pads its dense route past the end
+        the same way); route completion and every criterion use the route itself."""
+        k = np.arange(1.0, END_PAD + 0.5)[:, None]
+        heading = np.array([math.cos(self.yaw[-1]), math.sin(self.yaw[-1])])
+        return np.vstack([self.xy, self.xy[-1] + k * heading])
 
 
 def build_plan(route: Route, net: sumolib.net.Net) -> GlobalPlan:

@@ -13,9 +13,10 @@ training step spends on a sample, so every frame is rendered once into a cache:
   +-MAX_SHIFT, +-MAX_ROT with a generator seeded by (AUG_SEED, episode name), so the cache
   is the same whoever builds it and however many workers render it.
 - labels (path, speed waypoints, target point) of every view, in that view's ego frame
-  (x forward, y left) [m], the augmentation (shift, rot) of every view, and the ego speed.
+  (x forward, y left) [m], the augmentation (shift, rot) of every view, the ego speed and
+  the expert's stop-sign flag (model.train's data balance).
 
-Cache file: ``CACHE_DIR/<dataset hash[:16]>_v<views>.npz`` (written to a temporary file,
+Cache file: ``CACHE_DIR/<dataset hash[:16]>_v<views>_c<CACHE_VERSION>.npz`` (written to a temporary file,
 then renamed). The dataset hash covers every episode file's name and bytes.
 """
 from __future__ import annotations
@@ -34,7 +35,7 @@ PACKED_BYTES = int(np.prod(BEV_SHAPE)) // 8
 AUG_SEED = 0  # fixed: the cache (and so the augmented views) is shared by every training
 MAX_SHIFT = 1.0  # [m] lateral viewpoint shift, uniform in +-MAX_SHIFT
 MAX_ROT = np.deg2rad(10.0)  # [rad] viewpoint rotation, uniform in +-MAX_ROT
-CACHE_VERSION = 1  # bump when the cache layout or the rendering changes
+CACHE_VERSION = 2  # bump when the cache layout or the rendering changes
 
 
 def binarize(bev: np.ndarray) -> np.ndarray:
@@ -85,7 +86,8 @@ def render_episode(path: str, views: int) -> dict[str, np.ndarray]:
     aug = augmentation(ep.path.stem, n, views)
     out = {"bev": np.zeros((n, views, PACKED_BYTES), np.uint8), "aug": aug,
            "path": np.zeros((n, views, 20, 2), np.float32), "speed_wps": np.zeros((n, views, 10, 2), np.float32),
-           "target_point": np.zeros((n, views, 2), np.float32), "speed": ep.a["v"].astype(np.float32)}
+           "target_point": np.zeros((n, views, 2), np.float32), "speed": ep.a["v"].astype(np.float32),
+           "stop": ep.a["flag_stop"].astype(bool)}
     for k in range(n):
         for v in range(views):
             shift, rot = float(aug[k, v, 0]), float(aug[k, v, 1])

@@ -125,6 +125,14 @@ class StudentData:
         final = np.hypot(*self.arrays["speed_wps"][:, 0, -1].T)
         return (self.arrays["speed"] < 0.1) & (final < 0.5)
 
+    def departing(self) -> np.ndarray:
+        """(N,) bool: the ego stands (< 0.1 m/s) and has moved 0.5 m or more 2.5 s later."""
+        return (self.arrays["speed"] < 0.1) & ~self.staying()
+
+    def stop_sign(self) -> np.ndarray:
+        """(N,) bool: the expert's stop-sign cause is active (its ``flag_stop``)."""
+        return self.arrays["stop"]
+
     def batch(self, idx: np.ndarray, view: np.ndarray, cut: np.ndarray | None = None) -> dict[str, torch.Tensor]:
         """Samples idx (B,) seen from view (B,), route cut at cut (B,) m ahead (0 = no cut):
         model inputs, expert labels, teacher labels.

@@ -9,15 +9,21 @@ learning-rate schedule, validation loss averaged under no_grad after every epoch
 Schedule (fixed, the same for every arm): AdamW (betas 0.9/0.95, weight decay 0.01 on
 matrices and kernels only), batch 128, learning rate linear warm-up over WARMUP_STEPS to
 LR, then cosine decay to MIN_LR at the last step; gradient norm clipped to 1.0. Every
-sample is drawn once per epoch in a seeded random order; with probability AUG_PROB it is
+sample is drawn per epoch as the data balance below says, in a seeded random order; with probability AUG_PROB it is
 seen from an augmented view (model.cache), with probability CUT_PROB its route is cut
 ahead (model.data, route-end augmentation).
 
 Data balance: 38 % of the recorded frames show the expert standing and still standing 2.5 s
-later (red lights, stop signs, queues). A student without memory cannot tell "just
-arrived" from "waited long enough", learns to stay once stopped and never starts again
-(seen in closed loop). Each epoch therefore draws only KEEP_STAY of those frames (a new
-seeded subset every epoch); every other frame is drawn once.
+later (red lights, stop signs, queues), 6 % standing and then starting off. A student
+without memory cannot tell "just arrived" from "waited long enough", learns to stay once
+stopped and never starts again (seen in closed loop: the first students stood 55-76 % of
+the time, in runs cut only by the 40 s creep rule). So each epoch draws:
+- no standing-and-staying frame while the expert waits at a stop sign (a third of them):
+  from one BEV the wait is pure ambiguity, while the frames that approach the sign (moving)
+  still teach the student to stop there and the speed input then tells it it has stopped;
+- KEEP_STAY of the other standing-and-staying frames (a new seeded subset every epoch);
+- every starting-off frame (standing, moved >= 0.5 m 2.5 s later) DEPART_REPEAT times;
+- every other frame once.
 
 Teacher arms (``--teacher fixed|scimm``) add the teacher terms of eq. 11 and the mode term
 of eq. 13 with model.loss.LossWeights; ``--teacher none`` is the baseline (l_scimm = l_mode
@@ -54,6 +60,7 @@ GRAD_CLIP = 1.0
 AUG_PROB = 0.5  # share of samples seen from an augmented view
 VIEWS = 2  # cached views per frame: as recorded + one augmented
 KEEP_STAY = 0.15  # share of standing frames (StudentData.staying) drawn per epoch
+DEPART_REPEAT = 3  # draws per epoch of a starting-off frame (StudentData.departing)
 CUT_PROB = 0.1  # share of samples with the route cut ahead (route-end augmentation)
 CUT_RANGE = (4.0, 30.0)  # [m] the cut distance, uniform
 EPOCHS = 5  # default: about 9 min on 2 cores for 67k frames (docs/student.md)
@@ -90,11 +97,13 @@ class TrainConfig:
 
 
 def epoch_plan(data: StudentData, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """One epoch: sample order (standing frames thinned to KEEP_STAY), view and route cut
-    [m, 0 = none] of every frame."""
+    """One epoch: sample order (the data balance above), view and route cut [m, 0 = none]
+    of every frame."""
     n = len(data)
-    keep = ~data.staying() | (rng.random(n) < KEEP_STAY)
-    order = rng.permutation(np.flatnonzero(keep))
+    stay = data.staying()
+    keep = ~stay | ((rng.random(n) < KEEP_STAY) & ~data.stop_sign())
+    extra = np.repeat(np.flatnonzero(data.departing()), DEPART_REPEAT - 1)
+    order = rng.permutation(np.concatenate([np.flatnonzero(keep), extra]))
     views = np.where(rng.random(n) < AUG_PROB, rng.integers(1, data.views, n), 0) if data.views > 1 \
         else np.zeros(n, int)
     cuts = np.where(rng.random(n) < CUT_PROB, rng.uniform(*CUT_RANGE, n), 0.0)

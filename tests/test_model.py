@@ -123,7 +123,7 @@ def fake_dataset(root, n_frames=N_FRAMES, seed=0):
               "path": rng.normal(size=(n_frames, views, 20, 2)).astype(np.float32),
               "speed_wps": rng.normal(size=(n_frames, views, 10, 2)).astype(np.float32),
               "target_point": rng.normal(size=(n_frames, views, 2)).astype(np.float32),
-              "speed": rng.uniform(0, 8, n_frames).astype(np.float32),
+              "speed": rng.uniform(0, 8, n_frames).astype(np.float32), "stop": np.zeros(n_frames, bool),
               "episode": np.repeat(np.arange(2, dtype=np.int32), half),
               "frame": np.tile(np.arange(half, dtype=np.int32), 2), "stems": np.array(["a_rep0", "b_rep0"])}
     arrays["aug"][:, 1] = np.stack([rng.uniform(-1, 1, n_frames), rng.uniform(-0.2, 0.2, n_frames)], 1)
@@ -300,21 +300,26 @@ def test_a_route_cut_erases_the_route_ahead_and_pulls_the_target_point_onto_the_
     np.testing.assert_array_equal(b["path"].numpy(), arrays["path"][idx, view])  # labels unchanged
 
 
-def test_an_epoch_draws_every_moving_frame_once_and_thins_standing_frames(tmp_path):
-    from model.train import KEEP_STAY, epoch_plan
+def test_an_epoch_draws_moving_frames_once_thins_waits_drops_stop_sign_waits_repeats_starts(tmp_path):
+    from model.train import DEPART_REPEAT, KEEP_STAY, epoch_plan
     arrays = fake_dataset(tmp_path)
-    arrays["speed"][:100] = 0.0
-    arrays["speed_wps"][:100, 0] = 0.01  # still within 0.5 m after 2.5 s
-    arrays["speed"][100:] = 5.0
+    arrays["speed"][:130] = 0.0
+    arrays["speed_wps"][:120, 0] = 0.01  # 0..119 still within 0.5 m after 2.5 s: staying
+    arrays["speed_wps"][120:130, 0, :, 0] = np.linspace(0.1, 2.0, 10)  # 120..129 start off (2 m)
+    arrays["stop"][100:120] = True  # 100..119 wait at a stop sign
+    arrays["speed"][130:] = 5.0
     np.savez(bevcache.cache_path(tmp_path, tmp_path / "cache", 2), **arrays)
     data = StudentData.load(tmp_path, tmp_path / "cache", 2)
-    np.testing.assert_array_equal(np.flatnonzero(data.staying()), np.arange(100))
+    np.testing.assert_array_equal(np.flatnonzero(data.staying()), np.arange(120))
+    np.testing.assert_array_equal(np.flatnonzero(data.departing()), np.arange(120, 130))
     order, views, cuts = epoch_plan(data, np.random.default_rng(0))
-    assert len(set(order.tolist())) == len(order)
-    assert set(range(100, N_FRAMES)) <= set(order.tolist())
-    standing = int((order < 100).sum())
+    counts = np.bincount(order, minlength=N_FRAMES)
+    assert (counts[130:] == 1).all()  # moving frames: once
+    assert (counts[120:130] == DEPART_REPEAT).all()  # starting off: repeated
+    assert (counts[100:120] == 0).all()  # stop-sign waits: never
+    assert counts[:100].max() <= 1
     # binomial(100, KEEP_STAY <= 0.5): sd <= 5; a 4-sd band
-    assert abs(standing - 100 * KEEP_STAY) < 20
+    assert abs(int(counts[:100].sum()) - 100 * KEEP_STAY) < 20
     assert set(np.unique(views)) <= {0, 1} and ((cuts == 0) | ((cuts >= 4) & (cuts <= 30))).all()
 
 

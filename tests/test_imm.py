@@ -142,6 +142,31 @@ def test_missing_measurement_predicts_only():
     res = imm_filter(z, F, Q, R, x0, P0, Pi, mu0)
     np.testing.assert_allclose(res.mu[0, 3], full.mu[0, 2] @ Pi, atol=1e-12)  # mu = cbar
     assert res.loglik[0, 3] == 0.0
+    # P^j = Pbar^j on that frame; the fused P stays exactly symmetric even if Q is not quite
+    skew = 1e-12 * rng.normal(size=Q.shape)
+    lopsided = imm_filter(z, F, Q + skew - np.swapaxes(skew, -1, -2), R, x0, P0, Pi, mu0)
+    np.testing.assert_array_equal(lopsided.P, np.swapaxes(lopsided.P, -1, -2))
+
+
+def test_an_unreachable_mode_changes_nothing():
+    # mode 4 has mu0 = 0 and no transition into it, so cbar_4 = 0 (log -inf) every frame: it
+    # must stay at mu = 0 without NaN and leave the other four modes as an IMM without it
+    rng = np.random.default_rng(11)
+    F, Q, R, Pi, mu0, P0 = random_system(rng)
+    Pi[:, 4] = 0.0
+    Pi /= Pi.sum(axis=1, keepdims=True)
+    mu0[4] = 0.0
+    mu0 /= mu0.sum()
+    z = simulate(rng, F[:4], Q[:4], R, Pi[:4, :4], B=2, T=40)
+    x0 = rng.normal(size=(2, M, N))
+    five = imm_filter(z, F, Q, R, x0, P0, Pi, mu0)
+    four = imm_filter(z, F[:4], Q[:4], R, x0[:, :4], P0[:4], Pi[:4, :4], mu0[:4])
+    assert np.isfinite(five.x_modes).all() and (five.mu[..., 4] == 0.0).all()
+    # the same sums with exact zero terms added, possibly in another order: 1e-12
+    np.testing.assert_allclose(five.x, four.x, atol=1e-12)
+    np.testing.assert_allclose(five.P, four.P, atol=1e-12)
+    np.testing.assert_allclose(five.mu[..., :4], four.mu, atol=1e-12)
+    np.testing.assert_allclose(five.loglik, four.loglik, atol=1e-12)
 
 
 def test_batched_equals_one_sequence_at_a_time():
@@ -249,3 +274,12 @@ def test_shared_and_per_frame_inputs_give_identical_results():
         res = imm_filter(z, F, q, R, x0, P0, p, mu0)
         for field in ("x", "P", "mu", "x_modes", "loglik"):
             np.testing.assert_array_equal(getattr(res, field), getattr(shared, field))
+
+
+def test_bench_reports_its_figures_from_a_fresh_process():
+    # not a timing test: the figures exist and the IMM agrees with filterpy on the bench system
+    from scimm.bench import run_imm_bench
+    r = run_imm_bench(batch=3, frames=12, filterpy_sequences=2)
+    assert (r["imm_batch"], r["imm_frames"]) == (3, 12)
+    assert r["imm_frames_per_s"] > 0 and r["imm_frames_per_s_wall"] > 0 and r["filterpy_frames_per_s"] > 0
+    assert r["max_abs_diff_x"] < 1e-9 and r["max_abs_diff_mu"] < 1e-9

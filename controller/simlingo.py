@@ -33,12 +33,21 @@ CREEP_THROTTLE = 0.4  # minimum throttle while creeping [-]
 def resample_path(path: np.ndarray, step: float = PATH_STEP) -> np.ndarray:
     """(N, 2) path [m] -> points every ``step`` m of arc length from ``step`` on, measured
     from the ego origin (prepended); a degenerate path (no length) -> its last point."""
-    pts = np.vstack([[0.0, 0.0], np.asarray(path, dtype=float)])
-    cum = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(pts, axis=0).T))])
+    # written with preallocated arrays rather than vstack / diff / stack: this runs every tick
+    p = np.asarray(path, dtype=float)
+    pts = np.empty((len(p) + 1, 2))
+    pts[0], pts[1:] = 0.0, p
+    d = pts[1:] - pts[:-1]
+    cum = np.empty(len(pts))  # arc length at each point [m]
+    cum[0] = 0.0
+    np.cumsum(np.hypot(d[:, 0], d[:, 1]), out=cum[1:])
     if cum[-1] < step:
         return pts[-1:]
     s = np.arange(step, cum[-1] + 1e-9, step)
-    return np.stack([np.interp(s, cum, pts[:, 0]), np.interp(s, cum, pts[:, 1])], axis=1)
+    out = np.empty((len(s), 2))
+    out[:, 0] = np.interp(s, cum, pts[:, 0])
+    out[:, 1] = np.interp(s, cum, pts[:, 1])
+    return out
 
 
 def desired_speed(speed_wps: np.ndarray) -> float:

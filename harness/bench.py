@@ -2,75 +2,95 @@
 measured in the same run (SPEC §11). Never a timed test: numbers to read, not to assert.
 
 - harness step: wall time per 0.05 s tick of the full loop (agent, vehicle model, SUMO
-  mirroring, hazards, traffic, contacts, criteria, log) with the reference agent;
-- bare libsumo step: the same net, background traffic, hazard set-up and ego trajectory
-  (replayed with moveToXY from the harness log), only ``simulationStep`` and the traffic
-  top-up per tick: what SUMO itself costs;
-- BEV render: one 64 x 64 x 9 frame, averaged over many frames of a real snapshot.
+  mirroring, hazards, traffic, contacts, criteria, log) with the chosen agent;
+- bare libsumo step: the same SUMO work without the harness: the episode's
+  ``harness.episode.Scene`` (same net, seed, hazards, background traffic and route bubble)
+  replaying the ego of the harness log, timed over ``Scene.advance`` (moveToXY, the hazard
+  and traffic top-ups, ``simulationStep``). The replay checks that it reproduced the
+  episode's traffic (the background speed of every tick equals the log's);
+- bare inference (a learned agent): ``bare_inference(inputs)`` given by the caller, timing
+  the agent's own network call on the sensor inputs of sampled ticks of these episodes;
+- BEV render: one 64 x 64 x 9 frame, averaged over many frames of real snapshots.
 """
 from __future__ import annotations
 
 import json
 import math
 import time
+from typing import Callable
 
-import libsumo
 import numpy as np
 
 from harness.bev import BevRenderer
-from harness.episode import run_episode
-from harness.hazard_actors import HazardActor
+from harness.episode import EpisodeLog, Scene, background_roads, run_episode, sensor_inputs
 from harness.plan import build_plan
 from harness.runner import route_seed
-from harness.traffic import BackgroundTraffic
 from harness.world import World
 from controller.vehicle import EgoState
 from scenarios import resolve_set
-from scenarios.routefile import read_routes
+from scenarios.routefile import Route, read_routes
 from sumo_nets import load_net
 
+SAMPLE_EVERY = 50  # ticks between the frames kept for the BEV and inference figures
 
-def _bare_step_ms(route, seed: int, log) -> float:
-    """Per-tick cost [ms] of libsumo alone, replaying the ego of a harness log."""
+
+def _bare_step_ms(route: Route, seed: int, log: EpisodeLog) -> tuple[float, bool]:
+    """(per-tick cost [ms] of SUMO and its traffic alone, replaying the ego of a harness
+    log; whether the replay reproduced the episode's traffic)."""
     net = load_net(route.town)
     plan = build_plan(route, net)
-    ss = np.random.SeedSequence(seed)
+    ss = np.random.SeedSequence(seed)  # the generators and SUMO seed of run_episode
     rng_traffic, rng_hazard, _ = (np.random.default_rng(s) for s in ss.spawn(3))
-    world = World(route.town, int(ss.generate_state(1)[0] % (2**31 - 1)))
+    world = World(route.town, int(ss.generate_state(1)[0] % (2**31 - 1)), background_roads(route, net))
     try:
-        world.add_ego(route.edges, net.getLane(plan.path.legs[0].lane_in).getIndex(), route.depart_pos)
-        for k, h in enumerate(route.hazards):
-            HazardActor(h, plan, net, rng_hazard, k).setup()
-        traffic = BackgroundTraffic(net, plan, rng_traffic)
-        traffic.populate()
-        xs, ys, yaws, vs = (np.asarray(log.columns[c]) for c in ("x", "y", "yaw", "v"))
-        t0 = time.perf_counter()
+        scene = Scene(route, net, plan, world, rng_traffic, rng_hazard)
+        scene.start(EgoState(*plan.path.pose(0.0), 0.0))
+        xs, ys, yaws, vs, bg = (log.columns[c] for c in ("x", "y", "yaw", "v", "bg_speed"))
+        progress = [0] + log.columns["route_index"][:-1]  # the route index each tick started from
+        busy, same = 0.0, True
         for k in range(len(xs)):
-            world.move_ego(EgoState(xs[k], ys[k], yaws[k], vs[k]))
-            traffic.update()
-            world.step()
-        return 1000 * (time.perf_counter() - t0) / max(len(xs), 1)
+            s, ego_s = EgoState(xs[k], ys[k], yaws[k], vs[k]), float(plan.s[progress[k]])
+            t0 = time.perf_counter()
+            scene.advance(s, ego_s)
+            busy += time.perf_counter() - t0
+            now = world.snapshot().background_speed
+            same = same and (now == bg[k] or (math.isnan(now) and math.isnan(bg[k])))
+        return 1000 * busy / max(len(xs), 1), same
     finally:
         world.close()
 
 
 def run_bench(routes_name: str = "town12_smoke", n_routes: int = 4, bev_frames: int = 2000,
-              agent: str = "route_follower", agent_config: str | None = None) -> dict:
-    """Measure and return the figures (one process, one core) with ``agent`` driving."""
+              agent: str = "route_follower", agent_config: str | None = None,
+              bare_inference: Callable[[list[dict]], float] | None = None) -> dict:
+    """Measure and return the figures (one process, one core) with ``agent`` driving.
+
+    ``bare_inference(inputs) -> ms``: the agent's inference alone on a list of its sensor
+    inputs (dicts as ``run_step`` gets them) from sampled ticks of these episodes."""
     _, routes = read_routes(resolve_set(routes_name))
     routes = routes[:n_routes]
-    harness_ms, bare_ms, snaps = [], [], []
+    harness_ms, bare_ms, same, snaps, inputs = [], [], [], [], []
     for k, route in enumerate(routes):
         seed = route_seed(0, k)
+        kept = []
 
         def keep(f):
-            if f.tick % 50 == 0:
-                snaps.append((f.ego, f.snap, f.plan, f.lights, f.props))
+            if f.tick % SAMPLE_EVERY == 0:
+                kept.append(f)
 
         res = run_episode(route, agent, agent_config, seed, on_frame=keep)
-        # the frame callback costs a list append every 50th tick: negligible
+        # the frame callback costs a list append every SAMPLE_EVERY-th tick: negligible
         harness_ms.append(1000 * res.loop_time / max(res.steps, 1))
-        bare_ms.append(_bare_step_ms(route, seed, res.log))
+        ms, ok = _bare_step_ms(route, seed, res.log)
+        bare_ms.append(ms)
+        same.append(ok)
+        bev = BevRenderer.for_town(route.town)
+        for f in kept:  # what the agent sees on the next tick (its progress: this tick's route index)
+            snaps.append((f.ego, f.snap, f.plan, f.lights, f.props))
+            progress = res.log.columns["route_index"][f.tick - 1]
+            inputs.append(sensor_inputs(f.agent.sensors(), f.ego, f.plan, progress, f.snap,
+                                        (f.snap, f.lights, f.props),
+                                        lambda f=f: bev.render(f.ego, f.snap, f.plan, f.lights, f.props)))
     renderer = BevRenderer.for_town(routes[0].town)
     t0 = time.perf_counter()
     for i in range(bev_frames):
@@ -78,17 +98,22 @@ def run_bench(routes_name: str = "town12_smoke", n_routes: int = 4, bev_frames: 
         renderer.render(ego, snap, plan, lights, props)
     bev_ms = 1000 * (time.perf_counter() - t0) / bev_frames
     h, b = float(np.mean(harness_ms)), float(np.mean(bare_ms))
-    return {"routes": f"{routes_name} (first {len(routes)})", "agent": agent,
-            "harness_step_ms": round(h, 3), "bare_libsumo_step_ms": round(b, 3),
-            "harness_over_bare": round(h / b, 2) if b > 0 else math.nan,
-            "bev_render_ms": round(bev_ms, 4), "bev_target_ms": 0.5}
+    out = {"routes": f"{routes_name} (first {len(routes)})", "agent": agent,
+           "harness_step_ms": round(h, 3), "bare_libsumo_step_ms": round(b, 3),
+           "harness_over_bare": round(h / b, 2) if b > 0 else math.nan, "replay_same_traffic": all(same),
+           "bev_render_ms": round(bev_ms, 4), "bev_target_ms": 0.5}
+    if bare_inference is not None:
+        out["bare_inference_ms"] = round(bare_inference(inputs), 3)
+        out["harness_over_bare_plus_inference"] = round(h / (b + out["bare_inference_ms"]), 2)
+    return out
 
 
 def format_bench(r: dict) -> str:
     return "\n".join([
         f"closed loop on {r['routes']}, agent {r['agent']}, one process:",
         f"  harness step          {r['harness_step_ms']:8.3f} ms/tick",
-        f"  bare libsumo step     {r['bare_libsumo_step_ms']:8.3f} ms/tick  (same traffic, ego replayed)",
+        f"  bare libsumo step     {r['bare_libsumo_step_ms']:8.3f} ms/tick  (ego replayed; same traffic: "
+        f"{'yes' if r['replay_same_traffic'] else 'NO'})",
         f"  harness / bare        {r['harness_over_bare']:8.2f} x",
         f"  BEV render            {r['bev_render_ms']:8.4f} ms/frame  (target <= {r['bev_target_ms']} ms)",
     ])

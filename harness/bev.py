@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import math
 from functools import lru_cache
+from itertools import accumulate
 
 import cv2
 import numpy as np
@@ -38,6 +39,7 @@ EGO_ROW = 48  # ego centre row (36 m ahead, 12 m behind)
 CHANNELS = ("road", "lanes", "walk", "route", "vehicles", "walkers", "obstacles", "lights", "stops")
 ROAD, LANES, WALK, ROUTE, VEHICLES, WALKERS, OBSTACLES, LIGHTS, STOPS = range(9)
 _STATIC = (ROAD, LANES, WALK, STOPS)
+_STATIC_INDEX = list(_STATIC)  # the static map's layers, in order
 MAP_PPM = 1.0 / RES  # static map resolution [px / m]
 RED, YELLOW = 255, 128
 _TLS_LEVEL = {0: RED, 1: RED, 2: YELLOW, 3: YELLOW}  # TLS_CODES index r, R, y, Y
@@ -101,7 +103,10 @@ class BevRenderer:
         return self._stop_lines[key]
 
     def render(self, ego, snap, plan, lights: list[int], props: list) -> np.ndarray:
-        """(9, SIZE, SIZE) uint8 BEV around ego (x, y, yaw, world frame)."""
+        """(9, SIZE, SIZE) uint8 BEV around ego (x, y, yaw, world frame).
+
+        Every world point of the frame (route, stop lines, box corners) goes through one
+        ego-to-pixel transform, and each channel is drawn with one OpenCV call per group."""
         c, s = math.cos(ego.yaw), math.sin(ego.yaw)
         # output pixel (u, v) -> world: ego + R(yaw) (fwd, left), fwd = (EGO_ROW - v) RES,
         # left = (SIZE/2 - u) RES; then world -> map pixel
@@ -113,32 +118,36 @@ class BevRenderer:
         m[1, 2] = (self.y1 - wy) * MAP_PPM
         crop = cv2.warpAffine(self.map, m, (SIZE, SIZE), flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP)
         out = np.zeros((len(CHANNELS), SIZE, SIZE), dtype=np.uint8)
-        for i, ch in enumerate(_STATIC):
-            out[ch] = crop[:, :, i]
-        to_px = _ego_pixels(ego)
-        d = np.hypot(plan.xy[:, 0] - ego.x, plan.xy[:, 1] - ego.y)
-        near = plan.xy[d < 45.0]  # the raster's corners are 43 m from the ego
-        if len(near) >= 2:
-            cv2.polylines(out[ROUTE], [to_px(near)], False, 255, max(1, int(round(2.0 / RES))),
-                          cv2.LINE_8, shift=4)
-        for level in (YELLOW, RED):
-            lines = [self._light_line(p) for p, st in zip((q for q in plan.passages if q.tls), lights)
-                     if _TLS_LEVEL.get(st) == level]
-            for ln in lines:
-                for a in range(0, len(ln), 2):
-                    cv2.polylines(out[LIGHTS], [to_px(ln[a:a + 2])], False, level, 2, cv2.LINE_8, shift=4)
-        boxes = [(snap.xy, snap.yaw, snap.size, snap.cls)]
+        out[_STATIC_INDEX] = crop.transpose(2, 0, 1)
+        route = plan.shown_xy  # the route and its run-on past the end
+        d = np.hypot(route[:, 0] - ego.x, route[:, 1] - ego.y)
+        near = route[d < 45.0]  # the raster's corners are 43 m from the ego
+        passages = [q for q in plan.passages if q.tls]
+        stops = {level: [self._light_line(p) for p, st in zip(passages, lights) if _TLS_LEVEL.get(st) == level]
+                 for level in (YELLOW, RED)}
+        groups = [(snap.xy, snap.yaw, snap.size, snap.cls)]  # boxes, each group filled by its own calls
         if props:
             pa = np.array(props, dtype=float)
-            boxes.append((pa[:, :2], pa[:, 2], pa[:, 3:5], np.full(len(pa), STATIC)))
-        for xy, yaw, size, cls in boxes:
-            if len(xy) == 0:
-                continue
-            corners = _corners(xy, yaw, size)
+            groups.append((pa[:, :2], pa[:, 2], pa[:, 3:5], np.full(len(pa), STATIC)))
+        corners = [_corners(xy, yaw, size) for xy, yaw, size, _ in groups]  # (K, 4, 2) each
+        parts = [near, *stops[YELLOW], *stops[RED], *(cn.reshape(-1, 2) for cn in corners)]
+        all_px = _ego_pixels(ego)(np.concatenate(parts))
+        ends = list(accumulate(len(p) for p in parts))
+        px = [all_px[a:b] for a, b in zip([0] + ends, ends)]  # the pixels of each part
+        if len(near) >= 2:
+            cv2.polylines(out[ROUTE], [px[0]], False, 255, max(1, int(round(2.0 / RES))), cv2.LINE_8, shift=4)
+        i = 1
+        for level in (YELLOW, RED):  # red drawn over yellow
+            segments = [ln[a:a + 2] for ln in px[i:i + len(stops[level])] for a in range(0, len(ln), 2)]
+            if segments:
+                cv2.polylines(out[LIGHTS], segments, False, level, 2, cv2.LINE_8, shift=4)
+            i += len(stops[level])
+        for (_, _, _, cls), box_px in zip(groups, px[i:]):
+            box_px = box_px.reshape(-1, 4, 2)
+            present = set(cls.tolist())
             for ch, kind in ((VEHICLES, VEHICLE), (WALKERS, PEDESTRIAN), (OBSTACLES, STATIC)):
-                sel = cls == kind
-                if sel.any():
-                    cv2.fillPoly(out[ch], [to_px(p) for p in corners[sel]], 255, cv2.LINE_8, shift=4)
+                if kind in present:
+                    cv2.fillPoly(out[ch], list(box_px[cls == kind]), 255, cv2.LINE_8, shift=4)
         return out
 
 
@@ -157,15 +166,22 @@ def _stop_line(shape: np.ndarray, width: float) -> np.ndarray:
     return np.stack([end - n, end + n])
 
 
+_BOX_X = np.array([1.0, 1.0, -1.0, -1.0])  # corner signs along a box's length ...
+_BOX_Y = np.array([1.0, -1.0, -1.0, 1.0])  # ... and across it
+
+
 def _corners(xy: np.ndarray, yaw: np.ndarray, size: np.ndarray) -> np.ndarray:
-    """(K, 4, 2) corners of oriented boxes."""
-    c, s = np.cos(yaw), np.sin(yaw)
-    hl, hw = size[:, 0] / 2, size[:, 1] / 2
-    local = np.array([[1, 1], [1, -1], [-1, -1], [-1, 1]], dtype=float)
-    dx = local[None, :, 0] * hl[:, None]
-    dy = local[None, :, 1] * hw[:, None]
-    return np.stack([xy[:, 0, None] + c[:, None] * dx - s[:, None] * dy,
-                     xy[:, 1, None] + s[:, None] * dx + c[:, None] * dy], -1)
+    """(K, 4, 2) corners of oriented boxes (written into one array: this runs every frame)."""
+    c, s = np.cos(yaw)[:, None], np.sin(yaw)[:, None]
+    dx = _BOX_X * (size[:, 0] / 2)[:, None]  # (K, 4) corner offsets in the box frame
+    dy = _BOX_Y * (size[:, 1] / 2)[:, None]
+    out = np.empty(dx.shape + (2,), dtype=np.result_type(xy, c, dx))
+    x, y = out[..., 0], out[..., 1]
+    np.add(xy[:, 0, None], c * dx, out=x)
+    x -= s * dy
+    np.add(xy[:, 1, None], s * dx, out=y)
+    y += c * dy
+    return out
 
 
 def _ego_pixels(ego):
@@ -174,11 +190,12 @@ def _ego_pixels(ego):
 
     def to_px(pts: np.ndarray) -> np.ndarray:
         d = np.asarray(pts, dtype=float) - (ego.x, ego.y)
-        fwd = c * d[:, 0] + s * d[:, 1]
-        left = -s * d[:, 0] + c * d[:, 1]
-        u = SIZE / 2 - left / RES
-        v = EGO_ROW - fwd / RES
-        return np.round(np.stack([u, v], 1) * 16).astype(np.int32)
+        dx, dy = d[:, 0], d[:, 1]
+        uv = np.empty_like(d)
+        np.subtract(SIZE / 2, (-s * dx + c * dy) / RES, out=uv[:, 0])  # left [m] -> column
+        np.subtract(EGO_ROW, (c * dx + s * dy) / RES, out=uv[:, 1])  # forward [m] -> row
+        uv *= 16
+        return np.rint(uv, out=uv).astype(np.int32)
     return to_px
 
 

@@ -36,6 +36,8 @@ from sumo_nets import load_net
 # --timeout (60 s by default in 1.0); real agents take milliseconds, a learned one its
 # first call included, so 60 s only catches a hung agent.
 AGENT_TIMEOUT = 60.0
+_NAN_PATH, _NAN_WPS = np.full((20, 2), np.nan), np.full((10, 2), np.nan)  # logged when there is no prediction
+_NAN_PATH.flags.writeable = _NAN_WPS.flags.writeable = False
 
 
 @dataclass
@@ -90,8 +92,10 @@ class EpisodeResult:
     loop_time: float = 0.0  # wall time of the tick loop alone [s] (no start-up, no teardown)
 
 
-def _inputs(specs: list[dict], ego: EgoState, plan: GlobalPlan, progress: int, snap: Snapshot,
-            world_view, bev_fn) -> dict:
+def sensor_inputs(specs: list[dict], ego: EgoState, plan: GlobalPlan, progress: int, snap: Snapshot,
+                  world_view, bev_fn) -> dict:
+    """The agent's sensor data {id: value} for the tick that starts at ego state ``ego``
+    and dense route index ``progress`` (``bev_fn()`` renders the BEV when one is asked for)."""
     data = {}
     for spec in specs:
         t = spec["type"]
@@ -100,7 +104,7 @@ def _inputs(specs: list[dict], ego: EgoState, plan: GlobalPlan, progress: int, s
         elif t == "pose":
             data[spec["id"]] = (ego.x, ego.y, ego.yaw)
         elif t == "target_point":
-            data[spec["id"]] = to_ego(plan.xy[plan.target_point(progress)], ego.x, ego.y, ego.yaw)
+            data[spec["id"]] = to_ego(plan.target_xy(progress), ego.x, ego.y, ego.yaw)
         elif t == "command":
             data[spec["id"]] = int(plan.command[progress])
         elif t == "bev":
@@ -132,18 +136,9 @@ def run_episode(route: Route, agent_name: str, agent_config: str | None, seed: i
     status, message, tick = criteria.FAILED_SIMULATION, "", 0
     try:
         x0, y0, yaw0 = plan.path.pose(0.0)
-        lane0 = net.getLane(plan.path.legs[0].lane_in).getIndex()
-        world.add_ego(route.edges, lane0, route.depart_pos)
+        scene = Scene(route, net, plan, world, rng_traffic, rng_hazard)
         ego = EgoVehicle(EgoState(x0, y0, yaw0, 0.0), rng_ego)
-        hazards = [HazardActor(h, plan, net, rng_hazard, k) for k, h in enumerate(route.hazards)]
-        for h in hazards:
-            h.setup()
-        traffic = BackgroundTraffic(net, plan, rng_traffic)
-        traffic.populate()
-        quiet = tuple((h.site_s - 100.0, h.site_s + 150.0) for h in hazards if h.h.type == "ParkedObstacle")
-        bubble = RouteBubble(net, plan, quiet)
-        world.move_ego(ego.state)
-        world.step()
+        scene.start(ego.state)
         snap = world.snapshot()
         lights = [p for p in plan.passages if p.tls]
         bev = BevRenderer.for_town(route.town)
@@ -155,18 +150,10 @@ def run_episode(route: Route, agent_name: str, agent_config: str | None, seed: i
             validate_sensors(specs)
         except Exception as exc:  # noqa: BLE001 - any agent failure is recorded, the run goes on
             raise _AgentSetupError(f"{type(exc).__name__}: {exc}") from exc
-        legs = [(g.s1, g.edge, net.getLane(g.lane_in).getIndex()) for g in plan.path.legs]
-
-        def hint(s_route: float) -> tuple[str, int]:
-            """The route's edge and lane at arc length s (the junction after it counts as it)."""
-            for s1, edge, lane in legs:
-                if s_route <= s1:
-                    return edge, lane
-            return legs[-1][1], legs[-1][2]
-
         done = criteria.RouteCompletion(plan)
         in_route, blocked, timeout = criteria.InRoute(plan), criteria.Blocked(), criteria.RouteTimeout(plan)
-        props = [p for h in hazards for p in h.props]
+        hazards, props = scene.hazards, scene.props
+        prop_boxes = np.array(props, dtype=float).reshape(-1, 5)  # (P, 5) x, y, yaw, length, width
         end = None
         loop0 = wallclock.perf_counter()
         lights_now = world.light_states(lights)
@@ -174,7 +161,7 @@ def run_episode(route: Route, agent_name: str, agent_config: str | None, seed: i
             s = ego.state
             progress = done.progress.index
             try:
-                inputs = _inputs(specs, s, plan, progress, snap, (snap, lights_now, props),
+                inputs = sensor_inputs(specs, s, plan, progress, snap, (snap, lights_now, props),
                                  lambda: bev.render(s, snap, plan, lights_now, props))
                 out = _step_with_deadline(agent, inputs, world.time, agent_timeout)
                 control, pred = split_output(out)
@@ -185,12 +172,7 @@ def run_episode(route: Route, agent_name: str, agent_config: str | None, seed: i
                 break
             s = ego.step(control)
             ego_s = float(plan.s[progress])
-            world.move_ego(s, *hint(ego_s))
-            for h in hazards:
-                h.update(ego_s, world.time, s.v)
-            traffic.update()
-            bubble.update(ego_s, (s.x, s.y), world.time)
-            world.step()
+            scene.advance(s, ego_s)
             snap = world.snapshot()
             lights_now = world.light_states(lights)  # the state the next tick sees
             tick += 1
@@ -198,7 +180,7 @@ def run_episode(route: Route, agent_name: str, agent_config: str | None, seed: i
                    or blocked.update(s.v, world.time, paused=any(h.timeout_active(ego_s, world.time)
                                                                  for h in hazards))
                    or timeout.update(s.x, s.y, world.time))
-            _log_tick(log, tick, world.time, s, control, pred, done, snap, lights_now, props)
+            _log_tick(log, tick, world.time, s, control, pred, done, snap, lights_now, prop_boxes)
             if on_frame is not None:
                 on_frame(Frame(tick, s, snap, plan, pred, lights_now, props, control, agent))
         loop_time = wallclock.perf_counter() - loop0
@@ -220,6 +202,50 @@ def run_episode(route: Route, agent_name: str, agent_config: str | None, seed: i
         world.close()
     return EpisodeResult(status, float(rc), round(tick * DT, 3), wallclock.perf_counter() - wall0,
                          tick, message, log, plan.length, plan, loop_time)
+
+
+class Scene:
+    """Everything SUMO simulates in an episode: the ego mirrored into it, the route's
+    hazards, the background traffic and the route bubble. ``advance`` is the simulation's
+    half of a tick; ``harness.bench`` replays a logged ego through it to time SUMO and
+    its traffic alone."""
+
+    def __init__(self, route: Route, net, plan: GlobalPlan, world: World,
+                 rng_traffic: np.random.Generator, rng_hazard: np.random.Generator):
+        self.world = world
+        world.add_ego(route.edges, net.getLane(plan.path.legs[0].lane_in).getIndex(), route.depart_pos)
+        self.hazards = [HazardActor(h, plan, net, rng_hazard, k) for k, h in enumerate(route.hazards)]
+        for h in self.hazards:
+            h.setup()
+        self.traffic = BackgroundTraffic(net, plan, rng_traffic)
+        self.traffic.populate()
+        quiet = tuple((h.site_s - 100.0, h.site_s + 150.0) for h in self.hazards if h.h.type == "ParkedObstacle")
+        self.bubble = RouteBubble(net, plan, quiet)
+        self.props = [p for h in self.hazards for p in h.props]  # harness-only static boxes
+        self._legs = [(g.s1, g.edge, net.getLane(g.lane_in).getIndex()) for g in plan.path.legs]
+
+    def start(self, s: EgoState) -> None:
+        """The ego at its start pose s, and SUMO's first step."""
+        self.world.move_ego(s)
+        self.world.step()
+
+    def _hint(self, s_route: float) -> tuple[str, int]:
+        """The route's edge and lane at arc length s [m] (the junction after it counts as it)."""
+        for s1, edge, lane in self._legs:
+            if s_route <= s1:
+                return edge, lane
+        return self._legs[-1][1], self._legs[-1][2]
+
+    def advance(self, s: EgoState, ego_s: float) -> None:
+        """One tick: the ego placed at s (route arc length ego_s [m]), hazards and traffic
+        updated, SUMO stepped."""
+        world = self.world
+        world.move_ego(s, *self._hint(ego_s))
+        for h in self.hazards:
+            h.update(ego_s, world.time, s.v)
+        self.traffic.update()
+        self.bubble.update(ego_s, (s.x, s.y), world.time)
+        world.step()
 
 
 def background_roads(route: Route, net) -> frozenset[str]:
@@ -283,7 +309,8 @@ def _step_with_deadline(agent, inputs: dict, timestamp: float, timeout: float):
 
 
 def _log_tick(log: EpisodeLog, tick: int, t: float, s: EgoState, c: Control, pred: Prediction | None,
-              done: criteria.RouteCompletion, snap: Snapshot, lights: list[int], props: list) -> None:
+              done: criteria.RouteCompletion, snap: Snapshot, lights: list[int], props: np.ndarray) -> None:
+    """Append one tick to the log; ``props``: (P, 5) harness-only static boxes."""
     col = log.columns
     col["t"].append(t)
     col["x"].append(s.x)
@@ -301,10 +328,8 @@ def _log_tick(log: EpisodeLog, tick: int, t: float, s: EgoState, c: Control, pre
     hit = overlaps(ego_box, snap.xy, snap.yaw, snap.size)
     for k in np.flatnonzero(hit):
         log.contacts.append((tick, snap.ids[k], int(snap.cls[k])))
-    if props:
-        pa = np.array(props, dtype=float)
-        for k in np.flatnonzero(overlaps(ego_box, pa[:, :2], pa[:, 2], pa[:, 3:5])):
+    if len(props):
+        for k in np.flatnonzero(overlaps(ego_box, props[:, :2], props[:, 2], props[:, 3:5])):
             log.contacts.append((tick, f"prop{k}", STATIC))
-    nan_path, nan_wps = np.full((20, 2), np.nan), np.full((10, 2), np.nan)
-    log.path.append(pred.path if pred is not None and pred.path is not None else nan_path)
-    log.speed_wps.append(pred.speed_wps if pred is not None and pred.speed_wps is not None else nan_wps)
+    log.path.append(pred.path if pred is not None and pred.path is not None else _NAN_PATH)
+    log.speed_wps.append(pred.speed_wps if pred is not None and pred.speed_wps is not None else _NAN_WPS)

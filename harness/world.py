@@ -72,7 +72,7 @@ class World:
                        "--collision.action", "none", "--time-to-teleport", "120",
                        "--pedestrian.model", "striping", "--begin", "0"])
         self.time = 0.0
-        self._types: dict[str, tuple[float, float, int, bool]] = {}
+        self._types: dict[str, tuple[float, float, int, bool, float]] = {}
         vt = libsumo.vehicletype
         vt.copy("DEFAULT_VEHTYPE", "ego")
         vt.setLength("ego", LENGTH)
@@ -135,34 +135,35 @@ class World:
         self.time += DT
 
     # --- reading the world --------------------------------------------------------------
-    def _kind(self, vid: str, person: bool) -> tuple[float, float, int, bool]:
-        """(length, width, class, is_background) of an actor, cached per id."""
+    def _kind(self, vid: str) -> tuple[float, float, int, bool, float]:
+        """(length, width, class, is_background, centre offset behind the reported position)
+        of an actor, cached per id."""
         k = self._types.get(vid)
         if k is None:
-            if person:
-                k = (PERSON_SIZE, PERSON_SIZE, PEDESTRIAN, False)
-            else:
+            if vid.startswith(PERSON_PREFIX):  # SUMO reports a person's centre
+                k = (PERSON_SIZE, PERSON_SIZE, PEDESTRIAN, False, 0.0)
+            else:  # and a vehicle's front bumper
                 t = libsumo.vehicle.getTypeID(vid)
                 cls = STATIC if t.startswith("obstacle") else VEHICLE
-                k = (libsumo.vehicle.getLength(vid), libsumo.vehicle.getWidth(vid), cls, t == "background")
+                length = libsumo.vehicle.getLength(vid)
+                k = (length, libsumo.vehicle.getWidth(vid), cls, t == "background", length / 2)
             self._types[vid] = k
         return k
 
     def snapshot(self) -> Snapshot:
         """Actors within CONTEXT_RADIUS of the ego (the ego excluded)."""
         ids, rows, bg = [], [], []
+        kinds, roads = self._types, self.background_roads
         # one table for both context subscriptions (vehicles and persons), keyed by id
         for vid, var in (libsumo.vehicle.getContextSubscriptionResults(EGO) or {}).items():
             if vid == EGO:
                 continue
-            person = vid.startswith(PERSON_PREFIX)
-            length, width, cls, is_bg = self._kind(vid, person)
-            (fx, fy), ang, v = var[_POS], var[_ANGLE], var[_SPEED]
-            yaw = yaw_from_sumo(ang)
-            off = 0.0 if person else length / 2
+            length, width, cls, is_bg, off = kinds.get(vid) or self._kind(vid)
+            (fx, fy), v = var[_POS], var[_SPEED]
+            yaw = yaw_from_sumo(var[_ANGLE])
             ids.append(vid)
             rows.append((fx - math.cos(yaw) * off, fy - math.sin(yaw) * off, yaw, v, length, width, cls))
-            if is_bg and (not self.background_roads or var[_ROAD] in self.background_roads):
+            if is_bg and (not roads or var[_ROAD] in roads):
                 bg.append(v)
         a = np.array(rows, dtype=float).reshape(-1, 7)
         return Snapshot(ids, a[:, :2], a[:, 2], a[:, 3], a[:, 4:6], a[:, 6].astype(int),

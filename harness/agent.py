@@ -107,7 +107,7 @@ BUILTIN_AGENTS = {
     "fixed": "model.agent:FixedStudent",
     "scimm": "model.agent:ScimmStudent",
 }
-DEFAULT_AGENT = "expert"  # the best agent that exists until a student ships
+DEFAULT_AGENT = "scimm"  # the shipped SC-IMM student (model/checkpoints/scimm)
 
 
 def resolve_agent(name: str) -> str:

@@ -130,6 +130,11 @@ def _check_run_options(args: argparse.Namespace) -> None:
     timeout = getattr(args, "agent_timeout", None)
     if timeout is not None and not (math.isfinite(timeout) and timeout > 0):
         raise BadInput(f"--agent-timeout {timeout}: must be a positive number of seconds")
+    check_backend(args)
+
+
+def check_backend(args: argparse.Namespace) -> None:
+    """BadInput unless ``--backend`` / ``--address`` make sense and Ray is installed if asked for."""
     if args.address and args.backend != "ray":
         raise BadInput("--address needs --backend ray")
     if args.backend == "ray":
@@ -291,7 +296,7 @@ def _data_show(args: argparse.Namespace) -> int:
     return 0
 
 
-def _add_backend_options(p: argparse.ArgumentParser) -> None:
+def add_backend_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--backend", default="local", choices=("local", "ray"),
                    help="local worker processes, or Ray tasks (needs the 'ray' extra; see docs/scale.md)")
     p.add_argument("--address", help="Ray cluster to join (host:port of its head, ray://host:port, or auto); "
@@ -346,7 +351,7 @@ def build_parser() -> argparse.ArgumentParser:
     e.add_argument("--agent-timeout", type=float, default=AGENT_TIMEOUT,
                    help=f"seconds one run_step may take before the route ends as 'Failed - Agent crashed' "
                         f"(default {AGENT_TIMEOUT:g})")
-    _add_backend_options(e)
+    add_backend_options(e)
     e.set_defaults(func=_eval)
 
     r = sub.add_parser("render", help="video of the BEV while an agent drives one route, and a path PNG")
@@ -377,7 +382,7 @@ def build_parser() -> argparse.ArgumentParser:
     co.add_argument("--repetitions", type=int, default=1, help="runs per route, each with its own seed (default 1)")
     co.add_argument("--seed", type=_seed, default=0, help="run seed (default 0)")
     co.add_argument("--resume", action="store_true", help="finish an interrupted collection")
-    _add_backend_options(co)
+    add_backend_options(co)
     co.set_defaults(func=_collect)
 
     da = sub.add_parser("data", help="describe a dataset")

@@ -43,6 +43,11 @@ def load_run(folder: Path) -> dict[str, float]:
     return out
 
 
+def fig(x: float) -> str:
+    """A table figure to 4 significant digits, so 0.00031 1/m reads as such, not 0.000."""
+    return f"{x:.4g}"
+
+
 def _change(x: float, base: float) -> float:
     return 100.0 * (x - base) / abs(base) if base not in (0.0,) and math.isfinite(base) else math.nan
 
@@ -67,7 +72,7 @@ def markdown(rows: list[dict], columns, title: str) -> str:
         cells = []
         for key, _ in columns:
             v, c = r[key], r[f"{key} change %"]
-            cells.append(f"{v:.3f}" + ("" if r is rows[0] or not math.isfinite(c) else f" ({c:+.1f} %)"))
+            cells.append(fig(v) + ("" if r is rows[0] or not math.isfinite(c) else f" ({c:+.1f} %)"))
         lines.append(f"| {r['run']} | " + " | ".join(cells) + " |")
     return "\n".join(lines)
 
@@ -163,7 +168,7 @@ def write_arm_report(arms: dict[str, list[Path]], out: Path, n_boot: int = 2000)
         lines = [f"### {title} (mean over seeds, 95 % interval, change against {rows[0]['arm']})", "",
                  "| arm | seeds | " + " | ".join(k for k, _ in cols) + " |", "|" + " --- |" * (len(cols) + 2)]
         for r in rows:
-            cells = [f"{r[k]:.3f} [{r[k + ' ci95_low']:.3f}, {r[k + ' ci95_high']:.3f}]"
+            cells = [f"{fig(r[k])} [{fig(r[k + ' ci95_low'])}, {fig(r[k + ' ci95_high'])}]"
                      + ("" if r is rows[0] or not math.isfinite(r[k + ' change %']) else f" ({r[k + ' change %']:+.1f} %)")
                      for k, _ in cols]
             lines.append(f"| {r['arm']} | {r['seeds']} | " + " | ".join(cells) + " |")

@@ -69,7 +69,7 @@ def run_student_bench(train_steps: int = 20, warmup: int = 3, infer_frames: int 
 
         torch.set_num_threads(INFERENCE_THREADS)
         agent = StudentAgent()
-        agent.model = model.eval()
+        agent.use(model)
         bev = (rng.random(bevcache.BEV_SHAPE) < 0.15).astype(np.uint8) * 255
         for _ in range(10):
             agent.predict(bev, np.array([10.0, 1.0]), 5.0)

@@ -102,7 +102,7 @@ class Attention(nn.Module):
         b, t, d = x.shape
         s, h = context.shape[1], self.n_heads
         q = self.q(x).view(b, t, h, d // h).transpose(1, 2)  # (B, h, T, D/h)
-        k, v = self.kv(context).view(b, s, 2, h, d // h).permute(2, 0, 3, 1, 4)  # 2 x (B, h, S, D/h)
+        k, v = self.kv(context).view(b, s, 2, h, d // h).permute(2, 0, 3, 1, 4).unbind(0)  # 2 x (B, h, S, D/h)
         y = F.scaled_dot_product_attention(q, k, v)  # (B, h, T, D/h)
         return self.out(y.transpose(1, 2).reshape(b, t, d))  # (B, T, D)
 

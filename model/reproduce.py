@@ -46,18 +46,22 @@ class Stages:
         tmp.replace(self.file)
 
 
-def reproduce(out: Path, seeds: int, workers: int, repetitions: int, epochs: int | None) -> str:
-    """Run (or finish) the experiment in ``out``; returns the Markdown summary."""
+def reproduce(out: Path, seeds: int, workers: int, repetitions: int, epochs: int | None,
+              backend: tuple[str, ...] = (), sets: tuple[str, str, str] = ("train", "val", EVAL_SET)) -> str:
+    """Run (or finish) the experiment in ``out``; returns the Markdown summary. ``backend``:
+    extra options of the collect and eval stages (``--backend ray [--address A]``); ``sets``:
+    the training, validation and evaluation route sets (the paper's by default)."""
     from harness.figures import waypoint_overlay
     from harness.report import write_arm_report
     from scimm.teacher import is_complete
     out.mkdir(parents=True, exist_ok=True)
     st = Stages(out)
     train_dir, val_dir = out / "data" / "train", out / "data" / "val"
-    w = ["--workers", str(workers)]
-    st.run("collect train", ["collect", "--routes", "train", "--out", str(train_dir), *w,
+    w = ["--workers", str(workers), *backend]
+    train_set, val_set, eval_set = sets
+    st.run("collect train", ["collect", "--routes", train_set, "--out", str(train_dir), *w,
                              "--repetitions", str(repetitions), "--resume"])
-    st.run("collect val", ["collect", "--routes", "val", "--out", str(val_dir), *w, "--resume"])
+    st.run("collect val", ["collect", "--routes", val_set, "--out", str(val_dir), *w, "--resume"])
     for method in ("fixed", "scimm"):
         if not is_complete(train_dir, method):
             st.run(f"teacher {method}", ["teacher", "--data", str(train_dir), "--method", method])
@@ -71,7 +75,7 @@ def reproduce(out: Path, seeds: int, workers: int, repetitions: int, epochs: int
                         "--seed", str(seed), "--out", str(model_dir), "--cache", str(out / "data" / "cache")]
                 st.run(f"train {arm} s{seed}", argv + (["--epochs", str(epochs)] if epochs else []))
             run_dir = out / "runs" / f"{arm}_s{seed}"
-            st.run(f"eval {arm} s{seed}", ["eval", "--routes", EVAL_SET, "--agent", "student",
+            st.run(f"eval {arm} s{seed}", ["eval", "--routes", eval_set, "--agent", "student",
                                            "--agent-config", str(ckpt), *w, "--seed", str(seed),
                                            "--out", str(run_dir), "--resume"])
             runs[arm].append(run_dir)
@@ -123,19 +127,32 @@ def _markdown(df: pd.DataFrame) -> str:
 
 
 def _reproduce(args: argparse.Namespace) -> int:
-    from harness.cli import BadInput
+    from harness.cli import BadInput, check_backend
+    from scenarios import UnknownSet, resolve_set
     for name in ("seeds", "workers", "repetitions"):
         if getattr(args, name) < 1:
             raise BadInput(f"--{name} must be >= 1 (got {getattr(args, name)})")
     if args.epochs is not None and args.epochs < 1:
         raise BadInput(f"--epochs must be >= 1 (got {args.epochs})")
-    print(reproduce(Path(args.out), args.seeds, args.workers, args.repetitions, args.epochs))
+    backend: tuple[str, ...] = ()
+    if args.backend != "local" or args.address:
+        check_backend(args)
+        backend = ("--backend", args.backend) + (("--address", args.address) if args.address else ())
+    sets = (args.train_routes, args.val_routes, args.eval_routes)
+    for name in sets:
+        try:
+            resolve_set(name)
+        except UnknownSet as exc:
+            raise BadInput(str(exc)) from None
+    print(reproduce(Path(args.out), args.seeds, args.workers, args.repetitions, args.epochs, backend, sets))
     return 0
 
 
 def register(sub: argparse._SubParsersAction) -> None:
     """Add ``sumo-scimm reproduce``."""
     import os
+
+    from harness.cli import add_backend_options
     r = sub.add_parser("reproduce", help="the paper's whole experiment: collect, teachers, train, eval, tables",
                        description="Collect -> teachers -> train baseline/fixed/scimm per seed -> eval on "
                        f"{EVAL_SET} -> Tables 2-4, Fig. 4-5. Resumes: finished stages are skipped.")
@@ -145,4 +162,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="expert drives of each training route (default 1; 2 gives > 100k frames)")
     r.add_argument("--epochs", type=int, help="training epochs (default: sumo-scimm train's)")
     r.add_argument("--out", default="runs/reproduce", help="output folder (default runs/reproduce)")
+    add_backend_options(r)  # for the collect and eval stages; training runs here
+    # other route sets (e.g. town12_smoke everywhere): to try the pipeline in minutes, not for results
+    r.add_argument("--train-routes", default="train", help="training route set (default train)")
+    r.add_argument("--val-routes", default="val", help="validation route set (default val)")
+    r.add_argument("--eval-routes", default=EVAL_SET, help=f"evaluation route set (default {EVAL_SET})")
     r.set_defaults(func=_reproduce)

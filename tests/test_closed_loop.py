@@ -119,8 +119,8 @@ def test_smoke_run_on_two_workers_and_determinism(tmp_path, capsys):
     """The CI smoke run (town12_smoke on 2 workers), and the same run on 1 worker gives the
     same records and logs (wall time aside)."""
     two, one = tmp_path / "two", tmp_path / "one"
-    assert main(["eval", "--routes", "town12_smoke", "--workers", "2", "--out", str(two)]) == 0
-    assert main(["eval", "--routes", "town12_smoke", "--workers", "1", "--out", str(one)]) == 0
+    assert main(["eval", "--routes", "town12_smoke", "--agent", "expert", "--workers", "2", "--out", str(two)]) == 0
+    assert main(["eval", "--routes", "town12_smoke", "--agent", "expert", "--workers", "1", "--out", str(one)]) == 0
     recs = {r["key"]: r for r in _records(two)}
     assert sorted(recs) == ["0_rep0", "1_rep0", "2_rep0", "3_rep0"]
     assert all(r["episode_status"] == "Completed" and r["rc"] == 100.0 for r in recs.values())
@@ -171,8 +171,8 @@ def test_killed_worker_is_recorded_and_the_run_completes(tmp_path, capsys, monke
 
 def test_resume_after_a_killed_run_neither_repeats_nor_loses_a_route(tmp_path, capsys):
     out = tmp_path / "run"
-    cmd = [sys.executable, "-m", "harness.cli", "eval", "--routes", "town12_smoke", "--workers", "1",
-           "--out", str(out)]
+    cmd = [sys.executable, "-m", "harness.cli", "eval", "--routes", "town12_smoke", "--agent", "expert",
+           "--workers", "1", "--out", str(out)]
     proc = subprocess.Popen(cmd, start_new_session=True, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
                             env={**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[1])})
     rec = out / "records.jsonl"
@@ -183,7 +183,8 @@ def test_resume_after_a_killed_run_neither_repeats_nor_loses_a_route(tmp_path, c
     proc.wait()
     first = _records(out)
     assert 1 <= len(first) < 4
-    assert main(["eval", "--routes", "town12_smoke", "--workers", "2", "--out", str(out), "--resume"]) == 0
+    assert main(["eval", "--routes", "town12_smoke", "--agent", "expert", "--workers", "2", "--out", str(out),
+                 "--resume"]) == 0
     final = _records(out)
     assert sorted(r["key"] for r in final) == ["0_rep0", "1_rep0", "2_rep0", "3_rep0"]
     assert final[:len(first)] == first  # the routes run before the kill were kept, not redone

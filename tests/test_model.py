@@ -3,6 +3,7 @@ the teacher-file contract, augmentation of teacher labels, determinism of traini
 model checkpoints (round trip and refusals)."""
 from __future__ import annotations
 
+import json
 import math
 import os
 
@@ -238,6 +239,22 @@ def test_a_model_checkpoint_round_trips(tmp_path):
     assert load_checkpoint(tmp_path)[1] == manifest  # a training --out folder works too
 
 
+def test_the_agent_traced_network_gives_the_eager_outputs_bit_for_bit():
+    from model.agent import traced
+    torch.manual_seed(0)
+    m = Student(NetConfig()).eval()
+    net = traced(m)
+    g = torch.Generator().manual_seed(1)
+    with torch.inference_mode():
+        for _ in range(20):
+            x = (torch.rand(1, 9, 64, 64, generator=g) > 0.8).float(), torch.randn(1, 2, generator=g) * 10, \
+                torch.rand(1, generator=g) * 10
+            path, speed_wps = net(*x)
+            eager = m(*x)
+            torch.testing.assert_close(path, eager["path"], rtol=0, atol=0)
+            torch.testing.assert_close(speed_wps, eager["speed_wps"], rtol=0, atol=0)
+
+
 class _RunsCode:
     def __init__(self, marker):
         self.marker = marker
@@ -343,3 +360,21 @@ def test_eval_refuses_a_corrupt_checkpoint_before_any_route_runs(tmp_path, capsy
     err = capsys.readouterr().err
     assert f"model checkpoint {bad}" in err and len(err.strip().splitlines()) == 1
     assert not out.exists()
+
+
+@pytest.mark.parametrize("arm, teacher", [("baseline", "none"), ("fixed", "fixed"), ("scimm", "scimm")])
+def test_the_shipped_students_load_safely_and_say_how_they_were_made(arm, teacher):
+    """model/checkpoints/<arm>: small, loadable with weights_only, with the manifest of the
+    training that made it (seed 0 of `sumo-scimm reproduce`, model/checkpoints/README.md)."""
+    from model.agent import SHIPPED
+    path = SHIPPED / arm / "student.pt"
+    assert path.stat().st_size < 1_000_000
+    model, manifest = load_checkpoint(path)
+    assert manifest["teacher"] == teacher and manifest["seed"] == 0 and manifest["epochs"] == 5
+    assert json.loads((SHIPPED / arm / "manifest.json").read_text()) == manifest
+
+
+def test_the_default_agent_is_the_shipped_scimm_student():
+    from harness.agent import DEFAULT_AGENT, load_agent
+    assert DEFAULT_AGENT == "scimm"
+    load_agent(DEFAULT_AGENT).check_config(None)  # finds model/checkpoints/scimm/student.pt

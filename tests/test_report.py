@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-from harness.report import TABLE4, arm_figures, write_arm_report
+from harness.report import TABLE4, arm_figures, fig, write_arm_report
 
 COLS = ["key", "ds", "rc", "is", "collisions_layout", "collisions_pedestrian", "collisions_vehicle",
         "km_driven"] + [k for k, _ in TABLE4]
@@ -48,3 +48,9 @@ def test_mean_over_seeds_interval_and_change_against_the_baseline(tmp_path):
     rows4 = list(csv.DictReader(open(tmp_path / "tables" / "table4.csv")))
     assert float(rows4[1]["steering_jerk change %"]) == pytest.approx(-200 / 3)
     assert "(+20.0 %)" in text and (tmp_path / "tables" / "table3.md").is_file()
+    # figures keep 4 significant digits: the baseline's DS reads 55, its steering jerk 3
+    assert "| baseline | 2 | 55 [" in text and "| scimm | 1 | 66 [66, 66] (+20.0 %)" in text
+
+
+def test_small_figures_keep_their_significant_digits():
+    assert fig(0.000312345) == "0.0003123" and fig(54.9712) == "54.97" and fig(100.0) == "100"

@@ -1,0 +1,29 @@
+"""``sumo-scimm bench`` as a user runs it, on one town12_smoke route with the shipped SC-IMM
+student: every figure of SPEC §11 is printed and written as JSON beside its reference.
+The figures themselves are never asserted (they depend on the machine's load); that they
+were measured is: finite, positive, and the bare replay stepped the episode's traffic."""
+from __future__ import annotations
+
+import json
+import math
+
+from harness.cli import main
+
+
+def test_bench_prints_and_writes_every_figure_beside_its_reference(tmp_path, capsys):
+    out = tmp_path / "bench.json"
+    assert main(["bench", "--routes-count", "1", "--agent", "scimm", "--json", str(out)]) == 0
+    printed = capsys.readouterr().out
+    r = json.loads(out.read_text())
+    loop, imm, student = r["closed_loop"], r["teacher"], r["student"]
+    measured = [loop["harness_step_ms"], loop["bare_libsumo_step_ms"], loop["bare_inference_ms"],
+                loop["bev_render_ms"], imm["imm_frames_per_s"], imm["filterpy_frames_per_s"],
+                student["train_samples_per_s"], student["infer_ms_per_frame"]]
+    assert all(math.isfinite(v) and v > 0 for v in measured), measured
+    assert loop["replay_same_traffic"] is True and loop["agent"] == "scimm"
+    assert loop["harness_over_bare_plus_inference"] == round(
+        loop["harness_step_ms"] / (loop["bare_libsumo_step_ms"] + loop["bare_inference_ms"]), 2)
+    for line in ("harness / (bare + inference)", "BEV render", "IMM", "filterpy", "student training",
+                 "student inference"):
+        assert line in printed
+    assert "eval" not in r  # the whole town12_short evaluation only with --eval

@@ -51,7 +51,12 @@ class GlobalPlan:
         if len(ahead):
             return self.xy[int(ahead[0])]
         extra = min(self.s[progress] + TARGET_MIN - self.length, END_PAD)
-        return self.xy[-1] + extra * np.array([math.cos(self.yaw[-1]), math.sin(self.yaw[-1])])
+        return self.xy[-1] + extra * self._end_heading
+
+    @cached_property
+    def _end_heading(self) -> np.ndarray:
+        """(2,) unit vector of the route's last heading, world frame."""
+        return np.array([math.cos(self.yaw[-1]), math.sin(self.yaw[-1])])
 
     @cached_property
     def shown_xy(self) -> np.ndarray:
@@ -60,8 +65,7 @@ class GlobalPlan:
         route never looks like a place to stop (PDM-Lite pads its dense route past the end
         the same way); route completion and every criterion use the route itself."""
         k = np.arange(1.0, END_PAD + 0.5)[:, None]
-        heading = np.array([math.cos(self.yaw[-1]), math.sin(self.yaw[-1])])
-        return np.vstack([self.xy, self.xy[-1] + k * heading])
+        return np.vstack([self.xy, self.xy[-1] + k * self._end_heading])
 
 
 def build_plan(route: Route, net: sumolib.net.Net) -> GlobalPlan:

@@ -52,17 +52,13 @@ def traced(model: torch.nn.Module) -> torch.jit.ScriptModule:
         return torch.jit.trace(_Outputs(model.eval()), example, check_trace=False)
 
 
-def _load(path: Path) -> tuple[torch.nn.Module, dict, torch.jit.ScriptModule]:
-    model, manifest = load_checkpoint(path)
-    return model, manifest, traced(model)
-
-
 @functools.lru_cache(maxsize=4)
 def _loaded(key: tuple[str, int, int]) -> tuple[torch.nn.Module, dict, torch.jit.ScriptModule]:
     """The checkpoint at key[0] (key: path, mtime [ns], size), loaded and traced once per
     process: an eval worker sets up a new agent for every route, and every trace adds
     TorchScript types that are never freed (about 5 MB of worker memory per route)."""
-    return _load(Path(key[0]))
+    model, manifest = load_checkpoint(key[0])
+    return model, manifest, traced(model)
 
 
 class StudentAgent(AutonomousAgent):
@@ -73,9 +69,10 @@ class StudentAgent(AutonomousAgent):
                              "the --out folder of 'sumo-scimm train')")
         torch.set_num_threads(INFERENCE_THREADS)
         path = resolve(config)
-        stat = path.stat() if path.is_file() else None
-        key = (str(path.resolve()), stat.st_mtime_ns, stat.st_size) if stat else None
-        self.model, self.manifest, self.network = _loaded(key) if key else _load(path)
+        if not path.is_file():
+            load_checkpoint(path)  # raises the one-line BadInput naming the missing file
+        st = path.stat()
+        self.model, self.manifest, self.network = _loaded((str(path.resolve()), st.st_mtime_ns, st.st_size))
         self.controller = SimLingoController()
 
     def use(self, model: torch.nn.Module) -> None:

@@ -8,10 +8,11 @@ learning-rate schedule, validation loss averaged under no_grad after every epoch
 
 Schedule (fixed, the same for every arm): AdamW (betas 0.9/0.95, weight decay 0.01 on
 matrices and kernels only), batch 128, learning rate linear warm-up over WARMUP_STEPS to
-LR, then cosine decay to MIN_LR at the last step; gradient norm clipped to 1.0. Every
-sample is drawn per epoch as the data balance below says, in a seeded random order; with probability AUG_PROB it is
-seen from an augmented view (model.cache), with probability CUT_PROB its route is cut
-ahead (model.data, route-end augmentation).
+LR, then cosine decay to MIN_LR at the last step; gradient norm clipped to 1.0. Samples
+are drawn per epoch as the data balance below says, in a seeded random order; with
+probability AUG_PROB a frame is seen from an augmented view (model.cache), with
+probability CUT_PROB its route is cut ahead (model.data, route-end augmentation); a
+repeated frame keeps its view and cut within the epoch.
 
 Data balance: 38 % of the recorded frames show the expert standing and still standing 2.5 s
 later (red lights, stop signs, queues), 6 % standing and then starting off. A student
@@ -63,7 +64,7 @@ KEEP_STAY = 0.15  # share of standing frames (StudentData.staying) drawn per epo
 DEPART_REPEAT = 3  # draws per epoch of a starting-off frame (StudentData.departing)
 CUT_PROB = 0.1  # share of samples with the route cut ahead (route-end augmentation)
 CUT_RANGE = (4.0, 30.0)  # [m] the cut distance, uniform
-EPOCHS = 5  # default: about 9 min on 2 cores for 67k frames (docs/student.md)
+EPOCHS = 5  # default: about 3 min on 2 quiet cores for 67k frames (docs/results.md)
 THREADS = 2  # torch threads (fixed, so results do not depend on the machine's core count)
 
 

@@ -15,7 +15,11 @@ before the ego arrives. Moving things start at the trigger:
   UnprotectedLeftTurn: oncoming traffic flows.
 
 Walkers and cut-in vehicles are moved by the harness (``moveToXY``) along straight
-scripted paths, then released. Positions are world frame [m]; s is route arc length [m].
+scripted paths. At the end of its path a walker is removed, as the Leaderboard's
+pedestrian scenarios destroy theirs: released to SUMO, a walker that ``moveToXY`` had
+mapped onto a vehicle lane walked on along the road and, at the lane's end, SUMO stopped
+with "Disconnected walk" (val route 8). The cut-in vehicle drives on ahead of the ego
+(``_drive_on``). Positions are world frame [m]; s is route arc length [m].
 """
 from __future__ import annotations
 
@@ -172,7 +176,9 @@ class HazardActor:
         for a in list(self.scripted):
             if not a.place():
                 self.scripted.remove(a)
-                if not a.person:  # the cut-in vehicle drives on ahead of the ego
+                if a.person:  # it has crossed: gone, as in the Leaderboard's scenarios
+                    libsumo.person.remove(a.id)
+                else:  # the cut-in vehicle drives on ahead of the ego
                     self.cruise = (a.id, self.site_s + 10.0)
         if self.cruise is not None:
             self._drive_on()

@@ -94,6 +94,32 @@ def test_pedestrian_crossing_in_front_is_seen_in_the_bev():
     assert max(seen) > 0, "the crossing walker never showed in the BEV ahead of the ego"
 
 
+def test_a_walker_that_has_crossed_is_gone_not_left_to_sumo():
+    """Crossing walkers move on a straight line and leave the simulation at its end. Left
+    to SUMO, those that moveToXY had mapped onto a vehicle lane walked on along the road
+    (at right angles to the crossing) until SUMO stopped with "Disconnected walk"."""
+    route = SMOKE[2]
+    assert route.hazards[0].type == "PedestrianCrossing"
+    track: dict[str, list] = {}
+    present_at_end = []
+
+    def on_frame(f):
+        for k, i in enumerate(f.snap.ids):
+            if i.startswith("ped_hz"):
+                track.setdefault(i, []).append(f.snap.xy[k].copy())
+        present_at_end[:] = [i for i in libsumo.person.getIDList() if i.startswith("ped_hz")]
+
+    res = run_episode(route, "route_follower", None, seed=2, on_frame=on_frame)
+    assert res.status == "Completed" and len(track) == int(route.hazards[0].params["walkers"])
+    assert present_at_end == []
+    for pid, pts in track.items():
+        pts = np.array(pts)
+        u = (pts[-1] - pts[0]) / np.linalg.norm(pts[-1] - pts[0])
+        off_line = np.abs((pts[:, 0] - pts[0, 0]) * u[1] - (pts[:, 1] - pts[0, 1]) * u[0])
+        # the crossing is 1.44 m/s x ~12 s; SUMO reports positions to ~1 mm
+        assert off_line.max() < 0.05, f"{pid} left its crossing line by {off_line.max():.2f} m"
+
+
 def test_bev_places_an_actor_where_it_is(tmp_path):
     from harness.world import Snapshot
     route = SMOKE[0]

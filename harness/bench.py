@@ -10,13 +10,17 @@ measured in the same run (SPEC §11). Never a timed test: numbers to read, not t
   episode's traffic (the background speed of every tick equals the log's);
 - bare inference (a learned agent): ``bare_inference(inputs)`` given by the caller, timing
   the agent's own network call on the sensor inputs of sampled ticks of these episodes;
-- BEV render: one 64 x 64 x 9 frame, averaged over many frames of real snapshots.
+- BEV render: one 64 x 64 x 9 frame, averaged over many frames of real snapshots;
+- collect: simulated seconds per wall second of one worker recording the expert (issue
+  #5's ">= 20"): ``run_job`` as ``sumo-scimm collect`` runs it, episode file and log saved.
 """
 from __future__ import annotations
 
 import json
 import math
+import tempfile
 import time
+from pathlib import Path
 from typing import Callable
 
 import numpy as np
@@ -24,7 +28,7 @@ import numpy as np
 from harness.bev import BevRenderer
 from harness.episode import EpisodeLog, Scene, background_roads, run_episode, sensor_inputs
 from harness.plan import build_plan
-from harness.runner import route_seed
+from harness.runner import Job, route_seed, run_job
 from harness.world import World
 from controller.vehicle import EgoState
 from scenarios import resolve_set
@@ -106,6 +110,31 @@ def run_bench(routes_name: str = "town12_smoke", n_routes: int = 4, bev_frames: 
         out["bare_inference_ms"] = round(bare_inference(inputs), 3)
         out["harness_over_bare_plus_inference"] = round(h / (b + out["bare_inference_ms"]), 2)
     return out
+
+
+def collect_rate(routes_name: str = "town12_smoke", n_routes: int = 4) -> dict:
+    """The expert recorded as ``sumo-scimm collect`` records it (4 Hz episode files, logs),
+    the routes one after another in this process: simulated seconds per wall second of
+    one worker (each route's ``run_job``: simulation, recording, scoring, files). The first
+    route runs once untimed first: a worker loads the net and the BEV's layers once."""
+    path = resolve_set(routes_name)
+    _, routes = read_routes(path)
+    routes = routes[:n_routes]
+    sim = wall = 0.0
+    with tempfile.TemporaryDirectory(prefix="sumo-scimm-collect-") as tmp:
+        logs, episodes = Path(tmp, "logs"), Path(tmp, "episodes")
+        logs.mkdir()
+        episodes.mkdir()
+        jobs = [Job(k, route, 0, "expert", None, route_seed(0, k), str(logs), collect_dir=str(episodes),
+                    route_file=str(path)) for k, route in enumerate(routes)]
+        run_job(jobs[0])  # warm-up
+        for job in jobs:
+            t0 = time.perf_counter()
+            record = run_job(job)
+            wall += time.perf_counter() - t0
+            sim += record["game_time"]
+    return {"collect_routes": f"{routes_name} (first {len(routes)})", "collect_sim_s": round(sim, 1),
+            "collect_sim_s_per_wall_s": round(sim / wall, 1), "collect_target": 20.0}
 
 
 def format_bench(r: dict) -> str:

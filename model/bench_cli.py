@@ -9,6 +9,8 @@ measured in the same run, printed as a table and optionally written as JSON.
   IMMEstimator on the same sequences, and the largest difference between them;
 - student (``model.bench``): training samples per second on 2 threads, inference ms per
   frame at batch 1 on one thread;
+- collect (``harness.bench.collect_rate``): simulated seconds per wall second of one worker
+  recording the expert as ``sumo-scimm collect`` does;
 - with ``--eval``: wall time of a whole ``town12_short`` evaluation on 2 workers with the
   agent, and the worker memory (RSS) over it.
 
@@ -62,7 +64,7 @@ def _bare_inference(agent_name: str, agent_config: str | None):
 
 def _bench(args: argparse.Namespace) -> int:
     from harness.agent import AgentLoadError, load_agent
-    from harness.bench import format_bench, run_bench
+    from harness.bench import collect_rate, format_bench, run_bench
     from harness.cli import BadInput
     from model.bench import format_student_bench, run_student_bench
     from scimm.bench import format_imm_bench, run_imm_bench
@@ -75,6 +77,7 @@ def _bench(args: argparse.Namespace) -> int:
     r: dict = {"closed_loop": run_bench(args.routes, args.routes_count, agent=args.agent,
                                        agent_config=args.agent_config,
                                        bare_inference=_bare_inference(args.agent, args.agent_config))}
+    r["collect"] = collect_rate(args.routes, args.routes_count)
     r["teacher"] = run_imm_bench()
     r["student"] = run_student_bench()
     loop = r["closed_loop"]
@@ -83,6 +86,9 @@ def _bench(args: argparse.Namespace) -> int:
     print(format_bench(loop))
     print(f"  harness / (bare + inference) {loop['harness_over_bare_plus_inference']:.2f} x  "
           f"(inference {infer:.2f} ms; target <= {OVERHEAD_TARGET:g} x)")
+    c = r["collect"]
+    print(f"collect (expert, 4 Hz episode files), one worker on {c['collect_routes']}: "
+          f"{c['collect_sim_s_per_wall_s']:.1f} simulated s per wall s (target >= {c['collect_target']:g})")
     print(format_imm_bench(r["teacher"]))
     print(format_student_bench(r["student"]))
     if args.eval:

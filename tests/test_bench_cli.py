@@ -18,12 +18,12 @@ def test_bench_prints_and_writes_every_figure_beside_its_reference(tmp_path, cap
     loop, imm, student = r["closed_loop"], r["teacher"], r["student"]
     measured = [loop["harness_step_ms"], loop["bare_libsumo_step_ms"], loop["bare_inference_ms"],
                 loop["bev_render_ms"], imm["imm_frames_per_s"], imm["filterpy_frames_per_s"],
-                student["train_samples_per_s"], student["infer_ms_per_frame"]]
+                student["train_samples_per_s"], student["infer_ms_per_frame"], r["collect"]["collect_sim_s_per_wall_s"]]
     assert all(math.isfinite(v) and v > 0 for v in measured), measured
     assert loop["replay_same_traffic"] is True and loop["agent"] == "scimm"
     assert loop["harness_over_bare_plus_inference"] == round(
         loop["harness_step_ms"] / (loop["bare_libsumo_step_ms"] + loop["bare_inference_ms"]), 2)
-    for line in ("harness / (bare + inference)", "BEV render", "IMM", "filterpy", "student training",
-                 "student inference"):
+    for line in ("harness / (bare + inference)", "BEV render", "collect (expert", "IMM", "filterpy",
+                 "student training", "student inference"):
         assert line in printed
     assert "eval" not in r  # the whole town12_short evaluation only with --eval

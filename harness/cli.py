@@ -13,8 +13,7 @@ import math
 import sys
 from pathlib import Path
 
-from tqdm import tqdm
-
+from harness import world_cli
 from harness.agent import DEFAULT_AGENT
 from harness.episode import AGENT_TIMEOUT
 
@@ -43,64 +42,6 @@ class _Parser(argparse.ArgumentParser):
 
     def error(self, message: str) -> None:  # noqa: D401 - argparse API
         raise BadInput(f"{message} (see '{self.prog} --help')")
-
-
-# --- nets -------------------------------------------------------------------------------
-def _nets_build(args: argparse.Namespace) -> int:
-    import sumo_nets
-    towns = [sumo_nets.check_town(args.town)] if args.town else list(sumo_nets.TOWNS)
-    if args.seed is not None and len(towns) != 1:
-        raise BadInput("--seed needs --town (each town has its own default seed)")
-    out = Path(args.out) if args.out else sumo_nets.NETS_DIR
-    for town in tqdm(towns, desc="netconvert", unit="town", disable=None):
-        path = sumo_nets.build(town, args.seed, out)
-        tqdm.write(f"{town}: {path}")
-    return 0
-
-
-def _nets_show(args: argparse.Namespace) -> int:
-    import sumo_nets
-    from sumo_nets.stats import format_stats, net_stats
-    towns = [sumo_nets.check_town(args.town)] if args.town else list(sumo_nets.TOWNS)
-    rows = {t: net_stats(sumo_nets.net_path(t)) for t in towns}
-    print(json.dumps(rows, indent=2) if args.json else format_stats(rows))
-    return 0
-
-
-# --- routes -----------------------------------------------------------------------------
-def _routes_make(args: argparse.Namespace) -> int:
-    from scenarios import SETS, set_path
-    from scenarios.make import make_set
-    from scenarios.routefile import write_routes
-    if args.set not in SETS:
-        raise BadInput(f"unknown set {args.set!r} (buildable: {', '.join(SETS)})")
-    spec = SETS[args.set]
-    total = sum(n for _, n in spec.towns)
-    with tqdm(total=total, desc=f"routes {args.set}", unit="route", disable=None) as bar:
-        routes = make_set(args.set, args.seed, progress=bar.update)
-    meta = {"set": args.set, "seed": str(spec.seed if args.seed is None else args.seed),
-            "min_length": f"{spec.length[0]:g}", "max_length": f"{spec.length[1]:g}"}
-    out = write_routes(Path(args.out) if args.out else set_path(args.set), meta, routes)
-    print(f"{len(routes)} routes -> {out}")
-    return 0
-
-
-def _routes_check(args: argparse.Namespace) -> int:
-    from scenarios.check import check_file
-    n, problems = check_file(Path(args.file))
-    for p in problems:
-        print(f"{args.file}: {p}")
-    if problems:
-        return EXIT_BAD_INPUT
-    print(f"{args.file}: {n} routes OK")
-    return 0
-
-
-def _routes_show(args: argparse.Namespace) -> int:
-    from scenarios import resolve_set
-    from scenarios.show import show_set
-    print(show_set(resolve_set(args.name)))
-    return 0
 
 
 # --- eval -------------------------------------------------------------------------------
@@ -308,31 +249,7 @@ def build_parser() -> argparse.ArgumentParser:
                 "Leaderboard 2.0 scoring and SC-IMM teacher signals.")
     sub = p.add_subparsers(dest="command", required=True, parser_class=_Parser)
 
-    nets = sub.add_parser("nets", help="build or describe the town networks")
-    nsub = nets.add_subparsers(dest="action", required=True, parser_class=_Parser)
-    b = nsub.add_parser("build", help="rebuild town nets with netconvert (seeded, reproducible)")
-    b.add_argument("--town", help="one town (default: all)")
-    b.add_argument("--seed", type=_seed, help="builder seed (default: the town's own)")
-    b.add_argument("--out", help="output folder (default: the package's nets folder)")
-    b.set_defaults(func=_nets_build)
-    s = nsub.add_parser("show", help="size, junctions, road length, curved share, crossings")
-    s.add_argument("--town", help="one town (default: all)")
-    s.add_argument("--json", action="store_true", help="print JSON instead of a table")
-    s.set_defaults(func=_nets_show)
-
-    routes = sub.add_parser("routes", help="build, check or list route sets")
-    rsub = routes.add_subparsers(dest="action", required=True, parser_class=_Parser)
-    m = rsub.add_parser("make", help="build a route set from its seeded builder")
-    m.add_argument("--set", required=True, help="set name (town12_short, town12_smoke, train, val)")
-    m.add_argument("--seed", type=_seed, help="builder seed (default: the set's own)")
-    m.add_argument("--out", help="output file (default: scenarios/<set>.xml)")
-    m.set_defaults(func=_routes_make)
-    c = rsub.add_parser("check", help="validate a route file: one line per bad route, exit 2")
-    c.add_argument("file")
-    c.set_defaults(func=_routes_check)
-    w = rsub.add_parser("show", help="table of a route set: id, town, length, hazards")
-    w.add_argument("name", help="set name or route file")
-    w.set_defaults(func=_routes_show)
+    world_cli.register(sub)  # nets, routes
     e = sub.add_parser("eval", help="drive a route set with an agent in closed loop")
     e.add_argument("--routes", required=True, help="route set name (e.g. town12_short) or route file")
     e.add_argument("--routes-subset", help="route ids to run: '3', '0-9', '1,4,7'")

@@ -26,7 +26,7 @@ class BadInput(Exception):
     """User error: printed as one line, exit code 2."""
 
 
-def _seed(text: str) -> int:
+def seed_arg(text: str) -> int:
     """argparse type of every --seed: an integer >= 0 (numpy's SeedSequence takes no negative)."""
     try:
         value = int(text)
@@ -261,7 +261,7 @@ def build_parser() -> argparse.ArgumentParser:
                         "every CPU of the Ray cluster)")
     e.add_argument("--out", help="run folder (default runs/<set>_<agent>)")
     e.add_argument("--resume", action="store_true", help="finish an interrupted run in --out")
-    e.add_argument("--seed", type=_seed, default=0, help="run seed; each route derives its own (default 0)")
+    e.add_argument("--seed", type=seed_arg, default=0, help="run seed; each route derives its own (default 0)")
     e.add_argument("--checkpoint", help="Leaderboard results JSON (default <out>/results.json)")
     e.add_argument("--rules", default="lb2.0", choices=("lb2.0", "lb2.1", "b2d"),
                    help="scoring rules (default lb2.0)")
@@ -277,7 +277,7 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--agent", default=DEFAULT_AGENT, help=f"agent (default {DEFAULT_AGENT})")
     r.add_argument("--agent-config", help="file passed to the agent's setup()")
     r.add_argument("--out", required=True, help="video file (.mp4); the path PNG goes beside it")
-    r.add_argument("--seed", type=_seed, default=0, help="run seed, as in eval (default 0)")
+    r.add_argument("--seed", type=seed_arg, default=0, help="run seed, as in eval (default 0)")
     r.set_defaults(func=_render)
 
     sc = sub.add_parser("score", help="recompute the scores of a Leaderboard results JSON (ours or CARLA's)")
@@ -297,7 +297,7 @@ def build_parser() -> argparse.ArgumentParser:
     co.add_argument("--workers", type=int, default=None,
                     help="worker processes (default: cores; with --backend ray, every CPU of the cluster)")
     co.add_argument("--repetitions", type=int, default=1, help="runs per route, each with its own seed (default 1)")
-    co.add_argument("--seed", type=_seed, default=0, help="run seed (default 0)")
+    co.add_argument("--seed", type=seed_arg, default=0, help="run seed (default 0)")
     co.add_argument("--resume", action="store_true", help="finish an interrupted collection")
     add_backend_options(co)
     co.set_defaults(func=_collect)

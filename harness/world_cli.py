@@ -72,12 +72,12 @@ def _routes_show(args: argparse.Namespace) -> int:
 
 def register(sub: argparse._SubParsersAction) -> None:
     """Add ``nets build|show`` and ``routes make|check|show``."""
-    from harness.cli import _Parser, _seed
+    from harness.cli import seed_arg
     nets = sub.add_parser("nets", help="build or describe the town networks")
-    nsub = nets.add_subparsers(dest="action", required=True, parser_class=_Parser)
+    nsub = nets.add_subparsers(dest="action", required=True, parser_class=type(nets))
     b = nsub.add_parser("build", help="rebuild town nets with netconvert (seeded, reproducible)")
     b.add_argument("--town", help="one town (default: all)")
-    b.add_argument("--seed", type=_seed, help="builder seed (default: the town's own)")
+    b.add_argument("--seed", type=seed_arg, help="builder seed (default: the town's own)")
     b.add_argument("--out", help="output folder (default: the package's nets folder)")
     b.set_defaults(func=_nets_build)
     s = nsub.add_parser("show", help="size, junctions, road length, curved share, crossings")
@@ -86,10 +86,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     s.set_defaults(func=_nets_show)
 
     routes = sub.add_parser("routes", help="build, check or list route sets")
-    rsub = routes.add_subparsers(dest="action", required=True, parser_class=_Parser)
+    rsub = routes.add_subparsers(dest="action", required=True, parser_class=type(routes))
     m = rsub.add_parser("make", help="build a route set from its seeded builder")
     m.add_argument("--set", required=True, help="set name (town12_short, town12_smoke, train, val)")
-    m.add_argument("--seed", type=_seed, help="builder seed (default: the set's own)")
+    m.add_argument("--seed", type=seed_arg, help="builder seed (default: the set's own)")
     m.add_argument("--out", help="output file (default: scenarios/<set>.xml)")
     m.set_defaults(func=_routes_make)
     c = rsub.add_parser("check", help="validate a route file: one line per bad route, exit 2")

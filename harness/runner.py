@@ -20,11 +20,13 @@ records into the same files in completion order.
 """
 from __future__ import annotations
 
+import contextlib
 import json
 import multiprocessing as mp
 import os
 import signal
 import socket
+import threading
 from dataclasses import dataclass
 from multiprocessing.connection import wait
 from pathlib import Path
@@ -246,6 +248,25 @@ def _run_local(jobs: list[Job], workers: int, emit) -> None:
             p.join()
 
 
+@contextlib.contextmanager
+def _ctrl_c_after():
+    """Hold a Ctrl-C (SIGINT) that arrives while the block runs and deliver it again just
+    after, so an interrupted run never has a record in records.jsonl that records.csv and
+    results.json lack, nor a half-written .tmp file. Python handles signals in the main
+    thread only; elsewhere the block runs as is."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    held: list[int] = []
+    previous = signal.signal(signal.SIGINT, lambda signum, frame: held.append(signum))
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
+        if held:
+            os.kill(os.getpid(), signal.SIGINT)  # as if it arrived now: the previous handler acts
+
+
 def run_eval(jobs: list[Job], out: Path, workers: int | None, resume: bool, show_progress: bool = True,
              checkpoint: Path | None = None, sensors: list[str] | None = None, backend: str = "local",
              address: str | None = None) -> list[dict]:
@@ -276,14 +297,15 @@ def run_eval(jobs: list[Job], out: Path, workers: int | None, resume: bool, show
                    disable=not show_progress or None)
         with open(rec_path, "a") as f, open(workers_path, "a") as wf:
             def emit(job: Job, rec: dict, stats: dict | None) -> None:
-                f.write(json.dumps(rec) + "\n")
-                f.flush()
-                os.fsync(f.fileno())
-                records.append(rec)
-                if stats is not None:
-                    wf.write(json.dumps({"key": job.key, **stats}) + "\n")
-                    wf.flush()
-                write_outputs(records, len(jobs), out, checkpoint, sensors, finished=False, summary=False)
+                with _ctrl_c_after():  # the route's lines and the rewritten tables, all or none
+                    f.write(json.dumps(rec) + "\n")
+                    f.flush()
+                    os.fsync(f.fileno())
+                    records.append(rec)
+                    if stats is not None:
+                        wf.write(json.dumps({"key": job.key, **stats}) + "\n")
+                        wf.flush()
+                    write_outputs(records, len(jobs), out, checkpoint, sensors, finished=False, summary=False)
                 bar.update(1)
 
             if pool is not None:
@@ -294,7 +316,8 @@ def run_eval(jobs: list[Job], out: Path, workers: int | None, resume: bool, show
     finally:
         if pool is not None:
             pool.close()
-    write_outputs(records, len(jobs), out, checkpoint, sensors, finished=len(records) == len(jobs))
+    with _ctrl_c_after():
+        write_outputs(records, len(jobs), out, checkpoint, sensors, finished=len(records) == len(jobs))
     return records
 
 

@@ -253,8 +253,9 @@ def _ctrl_c_after():
     """Hold a Ctrl-C (SIGINT) that arrives while the block runs and deliver it again just
     after, so an interrupted run never has a record in records.jsonl that records.csv and
     results.json lack, nor a half-written .tmp file. Python handles signals in the main
-    thread only; elsewhere the block runs as is."""
-    if threading.current_thread() is not threading.main_thread():
+    thread only; elsewhere, or when a handler not set from Python holds SIGINT, the block
+    runs as is."""
+    if threading.current_thread() is not threading.main_thread() or signal.getsignal(signal.SIGINT) is None:
         yield
         return
     held: list[int] = []

@@ -154,13 +154,18 @@ def test_a_ctrl_c_while_a_route_is_written_lands_after_its_files():
     (before, a Ctrl-C there left a record in records.jsonl that records.csv lacked)."""
     from harness.runner import _ctrl_c_after
     done = []
-    with pytest.raises(KeyboardInterrupt):
-        with _ctrl_c_after():
-            os.kill(os.getpid(), signal.SIGINT)
-            time.sleep(0.05)  # a delivered SIGINT would raise here
-            done.append("written")
-    assert done == ["written"]
-    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler  # restored
+    # Python's own Ctrl-C handler, also when this test runs where SIGINT is ignored
+    inherited = signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        with pytest.raises(KeyboardInterrupt):
+            with _ctrl_c_after():
+                os.kill(os.getpid(), signal.SIGINT)
+                time.sleep(0.05)  # a delivered SIGINT would raise here
+                done.append("written")
+        assert done == ["written"]
+        assert signal.getsignal(signal.SIGINT) is signal.default_int_handler  # restored
+    finally:
+        signal.signal(signal.SIGINT, inherited)
 
 
 def test_sigint_then_resume_finishes_the_run_as_an_uninterrupted_one(tmp_path, capsys):

@@ -134,10 +134,8 @@ def _reproduce(args: argparse.Namespace) -> int:
             raise BadInput(f"--{name} must be >= 1 (got {getattr(args, name)})")
     if args.epochs is not None and args.epochs < 1:
         raise BadInput(f"--epochs must be >= 1 (got {args.epochs})")
-    backend: tuple[str, ...] = ()
-    if args.backend != "local" or args.address:
-        check_backend(args)
-        backend = ("--backend", args.backend) + (("--address", args.address) if args.address else ())
+    check_backend(args)
+    backend = ("--backend", args.backend) + (("--address", args.address) if args.address else ())
     sets = (args.train_routes, args.val_routes, args.eval_routes)
     for name in sets:
         try:

@@ -243,6 +243,7 @@ class Scene:
         world.move_ego(s, *self._hint(ego_s))
         for h in self.hazards:
             h.update(ego_s, world.time, s.v)
+        world.walking = {a.id: a.speed for h in self.hazards for a in h.scripted if a.person}
         self.traffic.update()
         self.bubble.update(ego_s, (s.x, s.y), world.time)
         world.step()

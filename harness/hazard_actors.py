@@ -31,7 +31,7 @@ import sumolib
 
 from controller.vehicle import DT
 from harness import criteria
-from harness.plan import GlobalPlan
+from harness.plan import GlobalPlan, leg_at, route_lane
 from harness.world import PERSON_PREFIX, sumo_angle
 from scenarios.routefile import Hazard
 
@@ -46,28 +46,10 @@ RED_HOLD = 6.0  # the switched light stays red this long after the ego could rea
 PERSON_KEEP_ROUTE = 6
 
 
-def _leg_at(plan: GlobalPlan, s: float):
-    for g in plan.path.legs:
-        if g.s0 - 1e-6 <= s <= g.s1 + 1e-6:
-            return g
-    return None
-
-
-def _lane_pos(plan: GlobalPlan, net: sumolib.net.Net, s: float) -> tuple[str, int, float] | None:
-    """(edge, lane index, position along the lane [m]) of route s, if s lies on an edge."""
-    g = _leg_at(plan, s)
-    if g is None:
-        return None
-    lane = net.getLane(g.lane_in)
-    x, y, _ = plan.path.pose(s)
-    pos, _ = lane.getClosestLanePosAndDist((x, y))
-    return g.edge, lane.getIndex(), float(pos)
-
-
 def _road_sides(plan: GlobalPlan, net: sumolib.net.Net, s: float) -> tuple[float, float]:
     """Distances [m] from the route centre to the right and left outer road borders at s
     (sidewalks included, the opposite direction's edge included)."""
-    g = _leg_at(plan, s)
+    g = leg_at(plan, s)
     if g is None:
         return 5.0, 5.0
     edge, lane = net.getEdge(g.edge), net.getLane(g.lane_in)
@@ -126,6 +108,7 @@ class HazardActor:
         self.spawned = 0
         self.flow_next = 0.0
         self.leader: str | None = None
+        self.leader_tries = 0
         self.brake_state = "drive"
         self.cruise: tuple[str, float] | None = None  # cut-in vehicle driven on along the route: (id, s)
         self.cleared_lane: str | None = None  # lane kept free of background traffic
@@ -145,7 +128,7 @@ class HazardActor:
         """Place the static parts (called once before the first step)."""
         t = self.h.type
         if t == "ParkedObstacle":
-            loc = _lane_pos(self.plan, self.net, self.site_s)
+            loc = route_lane(self.plan, self.net, self.site_s)
             if loc is None:
                 return
             edge, lane, pos = loc
@@ -187,7 +170,7 @@ class HazardActor:
                 self._spawn_flow()
                 self.flow_next = time + 60.0 / float(self.h.params["flow"])
         if self.leader is not None:
-            self._leader(time)
+            self._leader(ego_s, time, ego_speed)
 
     # --- per type ----------------------------------------------------------------------
     def _start(self, ego_s: float, ego_speed: float) -> None:
@@ -218,25 +201,9 @@ class HazardActor:
             _add_person(pid, self.plan.path.legs[0].edge, *p0)
             self.scripted.append(Scripted(pid, p0, p1, float(p["speed"]), person=True))
         elif t == "HardBreakRoute":
-            loc = _lane_pos(self.plan, self.net, ego_s + float(p["gap"]))
-            if loc is None:
-                return
-            edge, lane, pos = loc
-            legs = [g.edge for g in self.plan.path.legs]
-            vid = f"{self.tag}_leader"
-            libsumo.route.add(f"r_{vid}", legs[legs.index(edge):])
-            try:
-                libsumo.vehicle.add(vid, f"r_{vid}", typeID="hazard", departLane=str(lane),
-                                    departPos=f"{pos:.2f}", departSpeed=f"{max(ego_speed, 3.0):.2f}")
-            except libsumo.TraCIException:
-                # an ego faster than the leader's own desired speed (a student can be): SUMO
-                # refuses that departure speed, so the leader starts at its desired speed
-                libsumo.vehicle.add(vid, f"r_{vid}", typeID="hazard", departLane=str(lane),
-                                    departPos=f"{pos:.2f}", departSpeed="desired")
-            libsumo.vehicle.setLaneChangeMode(vid, 0)
-            self.leader = vid
+            self._add_leader(ego_s, ego_speed)
         elif t == "ParkingCutIn":
-            loc = _lane_pos(self.plan, self.net, self.site_s)
+            loc = route_lane(self.plan, self.net, self.site_s)
             if loc is None:
                 return
             edge, lane, _ = loc
@@ -256,6 +223,31 @@ class HazardActor:
             self.scripted.append(Scripted(vid, p0, np.array([x1, y1]), 4.0, person=False))
         elif t == "SignalizedJunction":
             self._switch_to_red(ego_s, ego_speed)
+
+    def _add_leader(self, ego_s: float, ego_speed: float) -> None:
+        """Insert the HardBreakRoute leader ``gap`` m ahead of the ego, in the route's lane."""
+        loc = route_lane(self.plan, self.net, ego_s + float(self.h.params["gap"]))
+        if loc is None:
+            return
+        edge, lane, pos = loc
+        legs = [g.edge for g in self.plan.path.legs]
+        vid = f"{self.tag}_leader"
+        self.leader_tries += 1
+        route_id = f"r_{vid}_{self.leader_tries}"
+        libsumo.route.add(route_id, legs[legs.index(edge):])
+        # at the ego's speed; a retry (SUMO found no safe gap for that speed, often behind
+        # traffic already ahead of the ego) at the highest speed that is safe there
+        speed = f"{max(ego_speed, 3.0):.2f}" if self.leader_tries == 1 else "max"
+        try:
+            libsumo.vehicle.add(vid, route_id, typeID="hazard", departLane=str(lane),
+                                departPos=f"{pos:.2f}", departSpeed=speed)
+        except libsumo.TraCIException:
+            # an ego faster than the leader's own desired speed (a student can be): SUMO
+            # refuses that departure speed, so the leader starts at its desired speed
+            libsumo.vehicle.add(vid, route_id, typeID="hazard", departLane=str(lane),
+                                departPos=f"{pos:.2f}", departSpeed="desired")
+        libsumo.vehicle.setLaneChangeMode(vid, 0)
+        self.leader = vid
 
     def _clear_lane(self) -> None:
         """Remove background vehicles from the obstacle's lane, as the Leaderboard's
@@ -336,9 +328,15 @@ class HazardActor:
             libsumo.vehicle.add(vid, f"r_{vid}", typeID="hazard", departLane="best",
                                 departPos=f"{pos:.2f}", departSpeed="max")
 
-    def _leader(self, time: float) -> None:
+    def _leader(self, ego_s: float, time: float, ego_speed: float) -> None:
         vid = self.leader
         if vid not in libsumo.vehicle.getIDList():
+            if self.brake_state == "drive" and vid in libsumo.simulation.getPendingVehicles():
+                # SUMO found no safe gap at the departure position and would insert it
+                # later, wherever the ego is by then (beside it, route 50): place it again
+                # ``gap`` m ahead of the ego now
+                libsumo.vehicle.remove(vid)
+                self._add_leader(ego_s, ego_speed)
             return
         if self.brake_state == "drive":
             x, y = libsumo.vehicle.getPosition(vid)

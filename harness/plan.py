@@ -90,6 +90,28 @@ def build_plan(route: Route, net: sumolib.net.Net) -> GlobalPlan:
     return GlobalPlan(route.id, route.town, xy, s, yaw, limit, command, sparse, path.passages, path)
 
 
+def leg_at(plan: GlobalPlan, s: float):
+    """The route leg (edge) that route s [m] lies on, None inside a junction."""
+    for g in plan.path.legs:
+        if g.s0 - 1e-6 <= s <= g.s1 + 1e-6:
+            return g
+    return None
+
+
+def route_lane(plan: GlobalPlan, net: sumolib.net.Net, s: float) -> tuple[str, int, float] | None:
+    """(edge, lane index, position along the lane [m]) of route s, if s lies on an edge.
+
+    The lane is the edge's lane nearest to the route there: a route that changes lanes
+    along an edge enters it on ``lane_in`` and leaves on ``lane_out``."""
+    g = leg_at(plan, s)
+    if g is None:
+        return None
+    x, y, _ = plan.path.pose(s)
+    found = [(lane.getClosestLanePosAndDist((x, y)), lane) for lane in net.getEdge(g.edge).getLanes()]
+    (pos, _), lane = min(found, key=lambda f: f[0][1])
+    return g.edge, lane.getIndex(), float(pos)
+
+
 def to_ego(points: np.ndarray, x: float, y: float, yaw: float) -> np.ndarray:
     """World points (N, 2) -> ego frame (x forward, y left) of a pose (x, y, yaw)."""
     c, s = math.cos(yaw), math.sin(yaw)

@@ -14,7 +14,7 @@ import libsumo
 import numpy as np
 import sumolib
 
-from harness.plan import GlobalPlan
+from harness.plan import GlobalPlan, route_lane
 from harness.world import PERSON_PREFIX
 
 NEAR = 200.0  # background actors live on edges within this distance of the route [m]
@@ -129,14 +129,11 @@ class RouteBubble:
     def _spawn_on_route(self, s: float, role: str) -> None:
         if not 0.0 <= s <= self.plan.length or any(a <= s <= b for a, b in self.quiet):
             return
-        for g in self.plan.path.legs:
-            if g.s0 <= s <= g.s1:
-                lane = self.net.getLane(g.lane_in)
-                x, y, _ = self.plan.path.pose(s)
-                pos, _ = lane.getClosestLanePosAndDist((x, y))
-                edges = [h.edge for h in self.plan.path.legs]
-                self._add(edges[edges.index(g.edge):], lane.getIndex(), float(pos), role)
-                return
+        loc = route_lane(self.plan, self.net, s)
+        if loc is not None:
+            edge, lane, pos = loc
+            edges = [h.edge for h in self.plan.path.legs]
+            self._add(edges[edges.index(edge):], lane, pos, role)
 
     def _spawn_oncoming(self, s: float) -> None:
         if any(a <= s <= b for a, b in self.quiet):

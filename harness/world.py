@@ -73,6 +73,9 @@ class World:
                        "--pedestrian.model", "striping", "--begin", "0"])
         self.time = 0.0
         self._types: dict[str, tuple[float, float, int, bool, float]] = {}
+        # walkers the harness moves with moveToXY stand in a waiting stage, for which SUMO
+        # reports speed 0; their scripted walking speed [m/s] by id (set by the hazards)
+        self.walking: dict[str, float] = {}
         vt = libsumo.vehicletype
         vt.copy("DEFAULT_VEHTYPE", "ego")
         vt.setLength("ego", LENGTH)
@@ -160,6 +163,8 @@ class World:
                 continue
             length, width, cls, is_bg, off = kinds.get(vid) or self._kind(vid)
             (fx, fy), v = var[_POS], var[_SPEED]
+            if cls == PEDESTRIAN:
+                v = self.walking.get(vid, v)
             yaw = yaw_from_sumo(var[_ANGLE])
             ids.append(vid)
             rows.append((fx - math.cos(yaw) * off, fy - math.sin(yaw) * off, yaw, v, length, width, cls))

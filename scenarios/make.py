@@ -6,8 +6,9 @@ random walk over the net from a random start position, cut so that its length al
 the lanes hits a target drawn from the set's target range), finds every hazard site on
 each (scenarios.hazards.find_sites), then fills the set's routes one by one: each gets
 the hazard type the set has least of so far among those some remaining candidate can
-host (or the set's required type), and with probability ``second`` a second hazard of
-another type at least ``SEPARATION`` metres away. Everything is drawn from one
+host (counts divided by the set's type weights; or the set's required type), and with
+probability ``second`` a second hazard of another type at least ``SEPARATION`` metres
+away. Everything is drawn from one
 ``numpy.random.Generator`` seeded by the set's seed, so a rebuild is byte-identical.
 """
 from __future__ import annotations
@@ -43,6 +44,10 @@ class SetSpec:
     second: float = 0.5  # probability of a second hazard on a route
     required: tuple[str, ...] = ()  # hazard type of route k, for the first routes
     exclude: tuple[str, ...] = ()  # sets whose (start edge, end edge) pairs are not reused
+    weights: tuple[tuple[str, float], ...] = ()  # hazard types balanced to these shares (default 1)
+
+    def weight(self, kind: str) -> float:
+        return dict(self.weights).get(kind, 1.0)
 
 
 SETS: dict[str, SetSpec] = {
@@ -52,9 +57,13 @@ SETS: dict[str, SetSpec] = {
     "town12_smoke": SetSpec((("town12", 4),), (120.0, 220.0), (140.0, 180.0), seed=1201, second=0.0,
                             required=("SignalizedJunction", "StopSignJunction", "PedestrianCrossing",
                                       "ParkedObstacle")),
-    # expert data for training, never sharing start and end edge with an evaluation route
+    # expert data for training, never sharing start and end edge with an evaluation route.
+    # ParkedObstacle weighs 3: it stands for three Leaderboard scenarios (Accident,
+    # ConstructionObstacle, ParkedObstacle), and the obstacle bypass is the rarest
+    # situation in the data (issue #5 asks for >= 2 % of the frames; 1.2 % unweighted)
     "train": SetSpec((("town01", 40), ("town02", 40), ("town07", 40), ("town12", 80)),
-                     (270.0, 330.0), (285.0, 315.0), seed=1202, exclude=("town12_short",)),
+                     (270.0, 330.0), (285.0, 315.0), seed=1202, exclude=("town12_short",),
+                     weights=(("ParkedObstacle", 3.0),)),
     # model selection, town12, disjoint from evaluation and training
     "val": SetSpec((("town12", 30),), (270.0, 330.0), (285.0, 315.0), seed=1203,
                    exclude=("town12_short", "train")),
@@ -192,7 +201,7 @@ def make_set(name: str, seed: int | None = None, progress=None) -> list[Route]:
             if not pool or not offered:
                 raise RuntimeError(f"{name}: ran out of candidate routes in {town}")
             want = (spec.required[len(routes)] if len(routes) < len(spec.required)
-                    else min(sorted(offered), key=lambda t: counts[t]))
+                    else min(sorted(offered), key=lambda t: counts[t] / spec.weight(t)))
             hosts = [c for c in pool if any(s.kind == want for s in c[1])]
             for _ in range(50):
                 walk, sites = hosts[int(rng.integers(len(hosts)))]
@@ -205,7 +214,7 @@ def make_set(name: str, seed: int | None = None, progress=None) -> list[Route]:
                 raise RuntimeError(f"{name}: could not place {want} in {town}")
             chosen = [(want, *first)]
             if rng.uniform() < spec.second:
-                others = sorted({s.kind for s in sites} - {want}, key=lambda t: (counts[t], t))
+                others = sorted({s.kind for s in sites} - {want}, key=lambda t: (counts[t] / spec.weight(t), t))
                 for kind in others[:2]:
                     site = [s for s in sites if s.kind == kind][0]
                     extra = _draw(kind, site, path, rng)

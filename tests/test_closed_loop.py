@@ -95,23 +95,28 @@ def test_pedestrian_crossing_in_front_is_seen_in_the_bev():
 
 
 def test_a_walker_that_has_crossed_is_gone_not_left_to_sumo():
-    """Crossing walkers move on a straight line and leave the simulation at its end. Left
+    """Crossing walkers move on a straight line at their speed, which the world view reports,
+    and leave the simulation at its end. Left
     to SUMO, those that moveToXY had mapped onto a vehicle lane walked on along the road
     (at right angles to the crossing) until SUMO stopped with "Disconnected walk"."""
     route = SMOKE[2]
     assert route.hazards[0].type == "PedestrianCrossing"
     track: dict[str, list] = {}
+    speeds: list[float] = []
     present_at_end = []
 
     def on_frame(f):
         for k, i in enumerate(f.snap.ids):
             if i.startswith("ped_hz"):
                 track.setdefault(i, []).append(f.snap.xy[k].copy())
+                speeds.append(float(f.snap.speed[k]))
         present_at_end[:] = [i for i in libsumo.person.getIDList() if i.startswith("ped_hz")]
 
     res = run_episode(route, "route_follower", None, seed=2, on_frame=on_frame)
     assert res.status == "Completed" and len(track) == int(route.hazards[0].params["walkers"])
     assert present_at_end == []
+    # the world view reports the walking speed (SUMO says 0 for a walker moved by moveToXY)
+    assert speeds and set(speeds) == {float(route.hazards[0].params["speed"])}
     for pid, pts in track.items():
         pts = np.array(pts)
         u = (pts[-1] - pts[0]) / np.linalg.norm(pts[-1] - pts[0])

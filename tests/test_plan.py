@@ -1,11 +1,12 @@
-"""The global plan's route sensors near the end of a route: the run-on past the last point."""
+"""The global plan: its route sensors near the end of a route (the run-on past the last
+point), and the lane the route is in along an edge."""
 from __future__ import annotations
 
 import math
 
 import numpy as np
 
-from harness.plan import END_PAD, TARGET_MIN, build_plan
+from harness.plan import END_PAD, TARGET_MIN, build_plan, route_lane
 from scenarios import set_path
 from scenarios.routefile import read_routes
 from sumo_nets import load_net
@@ -38,3 +39,17 @@ def test_the_shown_route_is_the_route_then_a_straight_run_on():
     steps = np.diff(shown[n - 1:], axis=0)
     heading = np.array([math.cos(plan.yaw[-1]), math.sin(plan.yaw[-1])])
     np.testing.assert_allclose(steps, np.tile(heading, (len(steps), 1)), atol=1e-9)  # 1 m steps straight on
+
+
+def test_a_hazard_is_placed_in_the_lane_the_route_is_in(short_routes):
+    """Route 50 changes from lane 1 to lane 2 along edge d45_d55: a vehicle placed at
+    route s goes to the lane the route is in there, not to the lane it entered the edge on."""
+    route = next(r for r in short_routes if r.id == "50")
+    net = load_net("town12")
+    plan = build_plan(route, net)
+    leg = next(g for g in plan.path.legs if g.lane_in != g.lane_out)
+    lanes = {net.getLane(leg.lane_in).getIndex(), net.getLane(leg.lane_out).getIndex()}
+    assert len(lanes) == 2
+    for s, lane_id in ((leg.s0 + 1.0, leg.lane_in), (leg.s1 - 1.0, leg.lane_out)):
+        edge, index, _ = route_lane(plan, net, s)
+        assert (edge, index) == (leg.edge, net.getLane(lane_id).getIndex())

@@ -109,6 +109,7 @@ class HazardActor:
         self.flow_next = 0.0
         self.leader: str | None = None
         self.leader_tries = 0
+        self.leader_on_road = False
         self.brake_state = "drive"
         self.cruise: tuple[str, float] | None = None  # cut-in vehicle driven on along the route: (id, s)
         self.cleared_lane: str | None = None  # lane kept free of background traffic
@@ -201,6 +202,7 @@ class HazardActor:
             _add_person(pid, self.plan.path.legs[0].edge, *p0)
             self.scripted.append(Scripted(pid, p0, p1, float(p["speed"]), person=True))
         elif t == "HardBreakRoute":
+            self.leader = f"{self.tag}_leader"
             self._add_leader(ego_s, ego_speed)
         elif t == "ParkingCutIn":
             loc = route_lane(self.plan, self.net, self.site_s)
@@ -225,13 +227,14 @@ class HazardActor:
             self._switch_to_red(ego_s, ego_speed)
 
     def _add_leader(self, ego_s: float, ego_speed: float) -> None:
-        """Insert the HardBreakRoute leader ``gap`` m ahead of the ego, in the route's lane."""
+        """Insert the HardBreakRoute leader ``gap`` m ahead of the ego, in the route's lane
+        (not yet if that point lies inside a junction)."""
         loc = route_lane(self.plan, self.net, ego_s + float(self.h.params["gap"]))
         if loc is None:
             return
         edge, lane, pos = loc
         legs = [g.edge for g in self.plan.path.legs]
-        vid = f"{self.tag}_leader"
+        vid = self.leader
         self.leader_tries += 1
         route_id = f"r_{vid}_{self.leader_tries}"
         libsumo.route.add(route_id, legs[legs.index(edge):])
@@ -247,7 +250,6 @@ class HazardActor:
             libsumo.vehicle.add(vid, route_id, typeID="hazard", departLane=str(lane),
                                 departPos=f"{pos:.2f}", departSpeed="desired")
         libsumo.vehicle.setLaneChangeMode(vid, 0)
-        self.leader = vid
 
     def _clear_lane(self) -> None:
         """Remove background vehicles from the obstacle's lane, as the Leaderboard's
@@ -331,13 +333,15 @@ class HazardActor:
     def _leader(self, ego_s: float, time: float, ego_speed: float) -> None:
         vid = self.leader
         if vid not in libsumo.vehicle.getIDList():
-            if self.brake_state == "drive" and vid in libsumo.simulation.getPendingVehicles():
-                # SUMO found no safe gap at the departure position and would insert it
-                # later, wherever the ego is by then (beside it, route 50): place it again
-                # ``gap`` m ahead of the ego now
-                libsumo.vehicle.remove(vid)
+            if not self.leader_on_road:
+                # not inserted yet: ``gap`` m ahead of the ego lay inside a junction, or SUMO
+                # found no safe gap there and would insert it later, wherever the ego is by
+                # then (beside it, route 50): place it ``gap`` m ahead of the ego now
+                if vid in libsumo.simulation.getPendingVehicles():
+                    libsumo.vehicle.remove(vid)
                 self._add_leader(ego_s, ego_speed)
             return
+        self.leader_on_road = True
         if self.brake_state == "drive":
             x, y = libsumo.vehicle.getPosition(vid)
             s, d = self.plan.path.project(x, y, self.trigger_s)

@@ -107,9 +107,20 @@ def route_lane(plan: GlobalPlan, net: sumolib.net.Net, s: float) -> tuple[str, i
     if g is None:
         return None
     x, y, _ = plan.path.pose(s)
-    found = [(lane.getClosestLanePosAndDist((x, y)), lane) for lane in net.getEdge(g.edge).getLanes()]
-    (pos, _), lane = min(found, key=lambda f: f[0][1])
+    lanes = net.getEdge(g.edge).getLanes()
+    # the bubble asks about once a second: pick the lane by the distance to its shape's
+    # points (cheap), then let sumolib project onto that one lane
+    lane = min(lanes, key=lambda ln: _point_distance(ln.getShape(), x, y)) if len(lanes) > 1 else lanes[0]
+    pos, _ = lane.getClosestLanePosAndDist((x, y))
     return g.edge, lane.getIndex(), float(pos)
+
+
+def _point_distance(shape: list, x: float, y: float) -> float:
+    """Distance [m] from (x, y) to a polyline (list of (x, y) points)."""
+    p = np.asarray(shape, dtype=float)[:, :2]
+    a, d = p[:-1], p[1:] - p[:-1]
+    t = np.clip(((x - a[:, 0]) * d[:, 0] + (y - a[:, 1]) * d[:, 1]) / np.maximum((d * d).sum(1), 1e-12), 0.0, 1.0)
+    return float(np.min(np.hypot(a[:, 0] + t * d[:, 0] - x, a[:, 1] + t * d[:, 1] - y)))
 
 
 def to_ego(points: np.ndarray, x: float, y: float, yaw: float) -> np.ndarray:
@@ -129,13 +140,15 @@ class Progress:
 
     def __init__(self, plan: GlobalPlan, window: int = 3):
         self.plan, self.window, self.index = plan, window, 0
-        self._fwd = np.stack([np.cos(plan.yaw), np.sin(plan.yaw)], axis=1)
+        # (x, y, forward x, forward y) per dense point, as Python floats: the window is 3-4
+        # points, where a plain loop costs a fifth of numpy's per-call overhead
+        self._pts = np.column_stack([plan.xy, np.cos(plan.yaw), np.sin(plan.yaw)]).tolist()
 
     def update(self, x: float, y: float) -> int:
         i = self.index
-        j = min(i + self.window, len(self.plan.s))
-        rel = np.array([x, y]) - self.plan.xy[i:j]
-        passed = np.flatnonzero(np.einsum("ij,ij->i", rel, self._fwd[i:j]) > 0)
-        if len(passed):
-            self.index = i + int(passed[-1])
+        for k in range(min(i + self.window, len(self._pts)) - 1, i, -1):  # the furthest passed
+            px, py, fx, fy = self._pts[k]
+            if (x - px) * fx + (y - py) * fy > 0:
+                self.index = k
+                break
         return self.index

@@ -94,7 +94,7 @@ class StudentAgent(AutonomousAgent):
         """(path (20, 2), speed waypoints (10, 2)) [m], ego frame, for one frame's inputs."""
         x = torch.from_numpy(binarize(bev)[None].astype(np.float32))  # (1, 9, 64, 64)
         tp = torch.as_tensor(np.asarray(target_point, dtype=np.float32)[None])  # (1, 2)
-        sp = torch.tensor([speed], dtype=torch.float32)  # (1,)
+        sp = torch.full((1,), speed, dtype=torch.float32)  # (1,)
         path, speed_wps = self.network(x, tp, sp)
         return path[0].numpy().astype(float), speed_wps[0].numpy().astype(float)
 

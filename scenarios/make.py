@@ -8,8 +8,8 @@ each (scenarios.hazards.find_sites), then fills the set's routes one by one: eac
 the hazard type the set has least of so far among those some remaining candidate can
 host (counts divided by the set's type weights; or the set's required type), and with
 probability ``second`` a second hazard of another type at least ``SEPARATION`` metres
-away. Everything is drawn from one
-``numpy.random.Generator`` seeded by the set's seed, so a rebuild is byte-identical.
+away. Everything is drawn from one ``numpy.random.Generator`` seeded by the set's seed,
+so a rebuild is byte-identical.
 """
 from __future__ import annotations
 

@@ -10,7 +10,9 @@ import argparse
 import importlib
 import json
 import math
+import signal
 import sys
+import threading
 from pathlib import Path
 
 from harness import world_cli
@@ -24,6 +26,15 @@ STAGE_CLIS = ("scimm.cli", "model.cli", "model.reproduce", "model.bench_cli")
 
 class BadInput(Exception):
     """User error: printed as one line, exit code 2."""
+
+
+class Terminated(KeyboardInterrupt):
+    """SIGTERM (a scheduler's or ``kill``'s stop), raised in the main thread so a run ends as
+    after a Ctrl-C: workers stopped, the records written so far complete, resumable."""
+
+
+def _raise_terminated(signum, frame) -> None:
+    raise Terminated()
 
 
 def seed_arg(text: str) -> int:
@@ -315,20 +326,38 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
+_depth = 0  # how many main() calls are running: reproduce and bench run their stages through main
+
+
 def main(argv: list[str] | None = None) -> int:
-    """Run the CLI; returns the process exit code."""
+    """Run the CLI; returns the process exit code. A Ctrl-C or SIGTERM ends the outermost
+    call (a stage run by reproduce passes it on rather than failing as a stage)."""
     from scenarios import UnknownSet
     from scenarios.routefile import RouteFileError
     from sumo_nets import UnknownTown
+    global _depth
+    outer = _depth == 0
+    in_main = threading.current_thread() is threading.main_thread()
+    previous = signal.signal(signal.SIGTERM, _raise_terminated) if in_main else None
+    _depth += 1
     try:
         args = build_parser().parse_args(argv)
         return args.func(args)
     except (BadInput, UnknownTown, UnknownSet, RouteFileError) as exc:
         print(f"sumo-scimm: error: {exc}", file=sys.stderr)
         return EXIT_BAD_INPUT
-    except KeyboardInterrupt:
+    except KeyboardInterrupt as exc:
+        if not outer:
+            raise
+        if isinstance(exc, Terminated):
+            print("sumo-scimm: terminated (SIGTERM)", file=sys.stderr)
+            return 128 + signal.SIGTERM
         print("sumo-scimm: interrupted", file=sys.stderr)
         return 130
+    finally:
+        _depth -= 1
+        if in_main and previous is not None:
+            signal.signal(signal.SIGTERM, previous)
 
 
 if __name__ == "__main__":

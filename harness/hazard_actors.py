@@ -31,7 +31,7 @@ import sumolib
 
 from controller.vehicle import DT
 from harness import criteria
-from harness.plan import GlobalPlan, leg_at, route_lane
+from harness.plan import GlobalPlan, route_lane
 from harness.world import PERSON_PREFIX, sumo_angle
 from scenarios.routefile import Hazard
 
@@ -49,12 +49,11 @@ PERSON_KEEP_ROUTE = 6
 def _road_sides(plan: GlobalPlan, net: sumolib.net.Net, s: float) -> tuple[float, float]:
     """Distances [m] from the route centre to the right and left outer road borders at s
     (sidewalks included, the opposite direction's edge included)."""
-    g = leg_at(plan, s)
-    if g is None:
+    loc = route_lane(plan, net, s)  # the lane the route is on at s (it may change lanes along an edge)
+    if loc is None:
         return 5.0, 5.0
-    edge, lane = net.getEdge(g.edge), net.getLane(g.lane_in)
+    edge, i = net.getEdge(loc[0]), loc[1]
     widths = [ln.getWidth() for ln in edge.getLanes()]
-    i = lane.getIndex()
     right = widths[i] / 2 + sum(widths[:i])
     left = widths[i] / 2 + sum(widths[i + 1:])
     rev = f"{edge.getToNode().getID()}_{edge.getFromNode().getID()}"

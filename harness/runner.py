@@ -167,7 +167,10 @@ def _worker(conn) -> None:
             return
         rec = run_job_safely(job)
         routes_run += 1
-        conn.send((rec, worker_stats(routes_run)))
+        try:
+            conn.send((rec, worker_stats(routes_run)))
+        except OSError:  # the parent is gone (killed): nobody to report to
+            return
 
 
 def read_records(path: Path) -> list[dict]:
@@ -250,22 +253,24 @@ def _run_local(jobs: list[Job], workers: int, emit) -> None:
 
 @contextlib.contextmanager
 def _ctrl_c_after():
-    """Hold a Ctrl-C (SIGINT) that arrives while the block runs and deliver it again just
-    after, so an interrupted run never has a record in records.jsonl that records.csv and
-    results.json lack, nor a half-written .tmp file. Python handles signals in the main
-    thread only; elsewhere, or when a handler not set from Python holds SIGINT, the block
-    runs as is."""
-    if threading.current_thread() is not threading.main_thread() or signal.getsignal(signal.SIGINT) is None:
+    """Hold a Ctrl-C (SIGINT) or a SIGTERM that arrives while the block runs and deliver it
+    again just after, so an interrupted run never has a record in records.jsonl that
+    records.csv and results.json lack, nor a half-written .tmp file. Python handles signals
+    in the main thread only; elsewhere the block runs as is, and so does a signal whose
+    handler was not set from Python."""
+    if threading.current_thread() is not threading.main_thread():
         yield
         return
     held: list[int] = []
-    previous = signal.signal(signal.SIGINT, lambda signum, frame: held.append(signum))
+    kinds = [k for k in (signal.SIGINT, signal.SIGTERM) if signal.getsignal(k) is not None]
+    previous = {k: signal.signal(k, lambda signum, frame: held.append(signum)) for k in kinds}
     try:
         yield
     finally:
-        signal.signal(signal.SIGINT, previous)
-        if held:
-            os.kill(os.getpid(), signal.SIGINT)  # as if it arrived now: the previous handler acts
+        for k, handler in previous.items():
+            signal.signal(k, handler)
+        for k in dict.fromkeys(held):
+            os.kill(os.getpid(), k)  # as if it arrived now: the previous handler acts
 
 
 def run_eval(jobs: list[Job], out: Path, workers: int | None, resume: bool, show_progress: bool = True,

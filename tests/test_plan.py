@@ -53,3 +53,19 @@ def test_a_hazard_is_placed_in_the_lane_the_route_is_in(short_routes):
     for s, lane_id in ((leg.s0 + 1.0, leg.lane_in), (leg.s1 - 1.0, leg.lane_out)):
         edge, index, _ = route_lane(plan, net, s)
         assert (edge, index) == (leg.edge, net.getLane(lane_id).getIndex())
+
+
+def test_a_hazards_road_sides_are_measured_from_the_lane_the_route_is_in(short_routes):
+    """On route 50's lane change (lane 1 -> 2 of d45_d55), the road's right border lies one
+    lane further right of the route at the end of the edge than at its start."""
+    from harness.hazard_actors import _road_sides
+    route = next(r for r in short_routes if r.id == "50")
+    net = load_net("town12")
+    plan = build_plan(route, net)
+    leg = next(g for g in plan.path.legs if g.lane_in != g.lane_out)
+    lanes = net.getEdge(leg.edge).getLanes()
+    for s, lane_id in ((leg.s0 + 1.0, leg.lane_in), (leg.s1 - 1.0, leg.lane_out)):
+        i = net.getLane(lane_id).getIndex()
+        right, _ = _road_sides(plan, net, s)
+        # lanes are indexed from the right: the route lane's half width plus every lane right of it
+        assert right == sum(ln.getWidth() for ln in lanes[:i]) + lanes[i].getWidth() / 2

@@ -148,31 +148,35 @@ def test_agent_setup_failure_is_recorded_as_such(tmp_path):
         assert len(log["x"]) == 0 and log["tls"].shape == (0, 0)
 
 
-def test_a_ctrl_c_while_a_route_is_written_lands_after_its_files():
+@pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM], ids=["sigint", "sigterm"])
+def test_a_ctrl_c_or_sigterm_while_a_route_is_written_lands_after_its_files(signum):
     """The runner writes a route's record, worker line, records.csv and results.json under
-    runner._ctrl_c_after: a SIGINT that arrives in between is raised only after the block
-    (before, a Ctrl-C there left a record in records.jsonl that records.csv lacked)."""
+    runner._ctrl_c_after: a SIGINT (or a SIGTERM, which ``sumo-scimm`` turns into a
+    Terminated exception) that arrives in between is raised only after the block (before,
+    a Ctrl-C there left a record in records.jsonl that records.csv lacked)."""
+    from harness.cli import Terminated, _raise_terminated
     from harness.runner import _ctrl_c_after
     done = []
     # Python's own Ctrl-C handler, also when this test runs where SIGINT is ignored
-    inherited = signal.signal(signal.SIGINT, signal.default_int_handler)
+    handler, raised = ((signal.default_int_handler, KeyboardInterrupt) if signum == signal.SIGINT
+                       else (_raise_terminated, Terminated))
+    inherited = signal.signal(signum, handler)
     try:
-        with pytest.raises(KeyboardInterrupt):
+        with pytest.raises(raised):
             with _ctrl_c_after():
-                os.kill(os.getpid(), signal.SIGINT)
-                time.sleep(0.05)  # a delivered SIGINT would raise here
+                os.kill(os.getpid(), signum)
+                time.sleep(0.05)  # a delivered signal would raise here
                 done.append("written")
         assert done == ["written"]
-        assert signal.getsignal(signal.SIGINT) is signal.default_int_handler  # restored
+        assert signal.getsignal(signum) is handler  # restored
     finally:
-        signal.signal(signal.SIGINT, inherited)
+        signal.signal(signum, inherited)
 
 
-def test_sigint_then_resume_finishes_the_run_as_an_uninterrupted_one(tmp_path, capsys):
-    """Ctrl-C (SIGINT to the whole process group) mid-run: the parent ends its workers and
-    exits 130; every file parses; --resume runs only the missing routes, and the records
-    equal those of an uninterrupted run with the same seed."""
-    out = tmp_path / "run"
+def _stop_a_smoke_eval(out: Path, stop) -> tuple[int, str, list[dict]]:
+    """Start ``eval`` on town12_smoke (2 workers, its own process group), call ``stop(proc)``
+    once a route is recorded; returns the exit code, stderr and the records then, after
+    checking that no worker outlived the parent."""
     cmd = [sys.executable, "-m", "harness.cli", "eval", "--routes", "town12_smoke", "--agent", "route_follower",
            "--workers", "2", "--out", str(out)]
     # Ctrl-C as in a terminal: SIGINT at its default even when this test itself runs in a
@@ -184,14 +188,48 @@ def test_sigint_then_resume_finishes_the_run_as_an_uninterrupted_one(tmp_path, c
     deadline = time.time() + 180
     while time.time() < deadline and not (rec.exists() and rec.read_text().count("\n") >= 1):
         time.sleep(0.05)
-    os.killpg(proc.pid, signal.SIGINT)
+    stop(proc)
     _, err = proc.communicate(timeout=60)
-    assert proc.returncode == 130 and "sumo-scimm: interrupted" in err and "Traceback" not in err
-    deadline = time.time() + 10
+    deadline = time.time() + 30  # a worker mid-route is ended by its parent, not waited for
     while _live_in_group(proc.pid) and time.time() < deadline:
         time.sleep(0.1)
-    assert not _live_in_group(proc.pid), "a worker process outlived the interrupted run"
-    first = _outputs_parse(out)
+    assert not _live_in_group(proc.pid), "a worker process outlived the stopped run"
+    return proc.returncode, err, _outputs_parse(out)
+
+
+def test_sigterm_ends_the_workers_and_the_run_resumes(tmp_path):
+    """``kill PID`` (SIGTERM to the parent alone, as a scheduler stops a job) mid-run: the
+    parent ends its workers and exits 143 with one line, no traceback from it or from a
+    worker; every file parses and --resume finishes the run."""
+    out = tmp_path / "run"
+    code, err, first = _stop_a_smoke_eval(out, lambda proc: proc.send_signal(signal.SIGTERM))
+    assert code == 143 and "sumo-scimm: terminated (SIGTERM)" in err and "Traceback" not in err, err
+    assert 1 <= len(first) < 4
+    assert main(["eval", "--routes", "town12_smoke", "--agent", "route_follower", "--workers", "2",
+                 "--out", str(out), "--resume"]) == 0
+    assert sorted(r["key"] for r in _outputs_parse(out)) == KEYS
+
+
+def test_a_stop_inside_a_reproduce_stage_ends_reproduce_as_stopped_not_as_a_failed_stage(tmp_path, monkeypatch, capsys):
+    """reproduce runs each stage through main(): a SIGTERM (or Ctrl-C) that lands in a stage
+    ends the whole command with 143 (130), not with 'stage failed' and exit 2."""
+    import harness.cli as cli
+
+    def stopped(args):
+        raise cli.Terminated()
+    monkeypatch.setattr(cli, "_collect", stopped)
+    assert main(["reproduce", "--out", str(tmp_path / "r"), "--seeds", "1"]) == 143
+    err = capsys.readouterr().err
+    assert "sumo-scimm: terminated (SIGTERM)" in err and "failed" not in err
+
+
+def test_sigint_then_resume_finishes_the_run_as_an_uninterrupted_one(tmp_path, capsys):
+    """Ctrl-C (SIGINT to the whole process group) mid-run: the parent ends its workers and
+    exits 130; every file parses; --resume runs only the missing routes, and the records
+    equal those of an uninterrupted run with the same seed."""
+    out = tmp_path / "run"
+    code, err, first = _stop_a_smoke_eval(out, lambda proc: os.killpg(proc.pid, signal.SIGINT))
+    assert code == 130 and "sumo-scimm: interrupted" in err and "Traceback" not in err
     assert 1 <= len(first) < 4
     assert main(["eval", "--routes", "town12_smoke", "--agent", "route_follower", "--workers", "2",
                  "--out", str(out), "--resume"]) == 0

@@ -22,12 +22,12 @@ frame, for pandas.
 from __future__ import annotations
 
 import math
-import os
 from pathlib import Path
 
 import numpy as np
 
 from controller.vehicle import DT
+from harness.atomic import savez_atomic
 from harness.plan import _DIRECTION_TO_OPTION, LANEFOLLOW, to_ego
 
 FRAME_EVERY = 5  # ticks per recorded frame (20 Hz -> 4 Hz)
@@ -150,7 +150,5 @@ class Recorder:
 
 
 def save_episode(path: Path, arrays: dict, route_file: str, route_id: str, town: str, record: dict) -> None:
-    tmp = path.with_name(path.name + ".tmp.npz")
-    np.savez_compressed(tmp, **arrays, route_file=np.array(route_file), route_id=np.array(route_id),
-                        town=np.array(town), ds=np.array(record["ds"]), status=np.array(record["status"]))
-    os.replace(tmp, path)
+    savez_atomic(path, **arrays, route_file=np.array(route_file), route_id=np.array(route_id),
+                 town=np.array(town), ds=np.array(record["ds"]), status=np.array(record["status"]))

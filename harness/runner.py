@@ -20,13 +20,11 @@ records into the same files in completion order.
 """
 from __future__ import annotations
 
-import contextlib
 import json
 import multiprocessing as mp
 import os
 import signal
 import socket
-import threading
 from dataclasses import dataclass
 from multiprocessing.connection import wait
 from pathlib import Path
@@ -35,6 +33,7 @@ import numpy as np
 from tqdm import tqdm
 
 from harness import criteria
+from harness.atomic import savez_atomic, signals_held
 from harness.episode import AGENT_TIMEOUT
 from harness.infractions import KEYS
 from harness.scoring import outside_lanes, route_record
@@ -109,10 +108,7 @@ def run_job(job: Job) -> dict:
     res = run_episode(job.route, job.agent, job.agent_config, job.seed,
                       on_frame=recorder.on_frame if recorder else None, agent_timeout=job.agent_timeout)
     arrays = res.log.arrays()
-    log_path = Path(job.log_dir) / f"{job.key}.npz"
-    tmp = log_path.with_name(log_path.name + ".tmp.npz")
-    np.savez_compressed(tmp, **arrays)
-    os.replace(tmp, log_path)
+    savez_atomic(Path(job.log_dir) / f"{job.key}.npz", **arrays)
     if res.plan is not None:
         infractions = detect(arrays, res.plan, job.route, load_net(job.route.town), res.status, job.rules)
     else:
@@ -251,28 +247,6 @@ def _run_local(jobs: list[Job], workers: int, emit) -> None:
             p.join()
 
 
-@contextlib.contextmanager
-def _ctrl_c_after():
-    """Hold a Ctrl-C (SIGINT) or a SIGTERM that arrives while the block runs and deliver it
-    again just after, so an interrupted run never has a record in records.jsonl that
-    records.csv and results.json lack, nor a half-written .tmp file. Python handles signals
-    in the main thread only; elsewhere the block runs as is, and so does a signal whose
-    handler was not set from Python."""
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
-    held: list[int] = []
-    kinds = [k for k in (signal.SIGINT, signal.SIGTERM) if signal.getsignal(k) is not None]
-    previous = {k: signal.signal(k, lambda signum, frame: held.append(signum)) for k in kinds}
-    try:
-        yield
-    finally:
-        for k, handler in previous.items():
-            signal.signal(k, handler)
-        for k in dict.fromkeys(held):
-            os.kill(os.getpid(), k)  # as if it arrived now: the previous handler acts
-
-
 def run_eval(jobs: list[Job], out: Path, workers: int | None, resume: bool, show_progress: bool = True,
              checkpoint: Path | None = None, sensors: list[str] | None = None, backend: str = "local",
              address: str | None = None) -> list[dict]:
@@ -303,7 +277,7 @@ def run_eval(jobs: list[Job], out: Path, workers: int | None, resume: bool, show
                    disable=not show_progress or None)
         with open(rec_path, "a") as f, open(workers_path, "a") as wf:
             def emit(job: Job, rec: dict, stats: dict | None) -> None:
-                with _ctrl_c_after():  # the route's lines and the rewritten tables, all or none
+                with signals_held():  # the route's lines and the rewritten tables, all or none
                     f.write(json.dumps(rec) + "\n")
                     f.flush()
                     os.fsync(f.fileno())
@@ -322,7 +296,7 @@ def run_eval(jobs: list[Job], out: Path, workers: int | None, resume: bool, show
     finally:
         if pool is not None:
             pool.close()
-    with _ctrl_c_after():
+    with signals_held():
         write_outputs(records, len(jobs), out, checkpoint, sensors, finished=len(records) == len(jobs))
     return records
 

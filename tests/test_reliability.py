@@ -151,11 +151,11 @@ def test_agent_setup_failure_is_recorded_as_such(tmp_path):
 @pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM], ids=["sigint", "sigterm"])
 def test_a_ctrl_c_or_sigterm_while_a_route_is_written_lands_after_its_files(signum):
     """The runner writes a route's record, worker line, records.csv and results.json under
-    runner._ctrl_c_after: a SIGINT (or a SIGTERM, which ``sumo-scimm`` turns into a
+    atomic.signals_held: a SIGINT (or a SIGTERM, which ``sumo-scimm`` turns into a
     Terminated exception) that arrives in between is raised only after the block (before,
     a Ctrl-C there left a record in records.jsonl that records.csv lacked)."""
+    from harness.atomic import signals_held
     from harness.cli import Terminated, _raise_terminated
-    from harness.runner import _ctrl_c_after
     done = []
     # Python's own Ctrl-C handler, also when this test runs where SIGINT is ignored
     handler, raised = ((signal.default_int_handler, KeyboardInterrupt) if signum == signal.SIGINT
@@ -163,7 +163,7 @@ def test_a_ctrl_c_or_sigterm_while_a_route_is_written_lands_after_its_files(sign
     inherited = signal.signal(signum, handler)
     try:
         with pytest.raises(raised):
-            with _ctrl_c_after():
+            with signals_held():
                 os.kill(os.getpid(), signum)
                 time.sleep(0.05)  # a delivered signal would raise here
                 done.append("written")
@@ -171,6 +171,32 @@ def test_a_ctrl_c_or_sigterm_while_a_route_is_written_lands_after_its_files(sign
         assert signal.getsignal(signum) is handler  # restored
     finally:
         signal.signal(signum, inherited)
+
+
+def test_a_worker_ended_while_it_writes_a_file_leaves_no_temporary_file(tmp_path):
+    """A worker is ended by its parent with SIGTERM (default action); one that arrives
+    while it writes a route log lands after the rename: the log is whole and no
+    ``.tmp.npz`` is left (CI once found one after a Ctrl-C test)."""
+    code = f"""
+import os, signal, sys
+import numpy as np
+from pathlib import Path
+from harness.atomic import savez_atomic
+path = Path({str(tmp_path)!r}) / "0_rep0.npz"
+write = np.savez_compressed
+def stopped_midway(file, **arrays):  # the parent's SIGTERM arrives while the file is written
+    os.kill(os.getpid(), signal.SIGTERM)
+    write(file, **arrays)
+np.savez_compressed = stopped_midway
+savez_atomic(path, x=np.arange(1_000_000.0))
+print("survived")  # not reached: the held SIGTERM ends the process after the rename
+"""
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60,
+                          env={**os.environ, "PYTHONPATH": str(ROOT)})
+    assert proc.returncode == -signal.SIGTERM and "survived" not in proc.stdout, proc.stderr
+    assert [p.name for p in tmp_path.iterdir()] == ["0_rep0.npz"]
+    with np.load(tmp_path / "0_rep0.npz") as z:
+        np.testing.assert_array_equal(z["x"], np.arange(1_000_000.0))
 
 
 def _stop_a_smoke_eval(out: Path, stop) -> tuple[int, str, list[dict]]:

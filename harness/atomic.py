@@ -1,0 +1,47 @@
+"""Files that are written whole or not at all, even when the run is stopped.
+
+A run is stopped by Ctrl-C (SIGINT) or SIGTERM: the parent ends its workers with SIGTERM.
+Every file goes to ``NAME.tmp...`` and is renamed over NAME; ``signals_held`` holds a
+SIGINT or SIGTERM that arrives meanwhile and delivers it just after, so a stop never leaves
+a half-written temporary file, nor (in the parent) a record in records.jsonl that
+records.csv and results.json lack.
+"""
+from __future__ import annotations
+
+import contextlib
+import os
+import signal
+import threading
+from pathlib import Path
+
+import numpy as np
+
+
+@contextlib.contextmanager
+def signals_held():
+    """Run the block with SIGINT and SIGTERM held; a held one is delivered again just after
+    (the previous handler acts then: a worker's default SIGTERM ends it, a parent's raises).
+    Python handles signals in the main thread only; elsewhere the block runs as is, and so
+    does a signal whose handler was not set from Python."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    held: list[int] = []
+    kinds = [k for k in (signal.SIGINT, signal.SIGTERM) if signal.getsignal(k) is not None]
+    previous = {k: signal.signal(k, lambda signum, frame: held.append(signum)) for k in kinds}
+    try:
+        yield
+    finally:
+        for k, handler in previous.items():
+            signal.signal(k, handler)
+        for k in dict.fromkeys(held):
+            os.kill(os.getpid(), k)  # as if it arrived now
+
+
+def savez_atomic(path: Path, /, **arrays) -> None:
+    """``np.savez_compressed`` to ``path`` via ``path.tmp.npz``, with stops held (``path``
+    is positional-only: an array may be called "path")."""
+    tmp = path.with_name(path.name + ".tmp.npz")
+    with signals_held():
+        np.savez_compressed(tmp, **arrays)
+        os.replace(tmp, path)

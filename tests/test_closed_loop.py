@@ -258,3 +258,35 @@ def test_the_hard_braking_leader_appears_gap_ahead_of_the_ego(short_routes, rid)
     # driving later; it is on the lane nearest the route (route 50 is mid-way through a
     # lane change there: 1.7 m)
     assert gap - 4.0 < ahead < gap and off < 2.0, (ahead, off)
+
+
+def test_bev_rendering_starts_no_helper_threads():
+    """A worker is one process per core: rendering must not leave OpenCV pool threads
+    behind (they spin between frames, taking CPU from the other workers). Counted in a
+    fresh interpreter, before and after 20 frames, from /proc (Linux)."""
+    if not Path("/proc/self/task").is_dir():
+        pytest.skip("needs /proc to count threads")
+    if (os.cpu_count() or 1) < 2:
+        pytest.skip("OpenCV starts no pool threads on one core: nothing to tell apart")
+    code = """
+import math, os, numpy as np
+from controller.vehicle import EgoState
+from harness import bev as B
+from harness.plan import build_plan
+from harness.world import Snapshot
+from scenarios import set_path
+from scenarios.routefile import read_routes
+from sumo_nets import load_net
+route = read_routes(set_path("town12_smoke"))[1][0]
+plan = build_plan(route, load_net("town12"))
+renderer = B.BevRenderer.for_town("town12")
+snap = Snapshot([], np.zeros((0, 2)), np.zeros(0), np.zeros(0), np.zeros((0, 2)), np.zeros(0, int), math.nan)
+before = len(os.listdir("/proc/self/task"))
+for k in range(20):
+    x, y, yaw = plan.path.pose(2.0 * k)
+    renderer.render(EgoState(x, y, yaw, 0.0), snap, plan, [], [])
+print(before, len(os.listdir("/proc/self/task")))
+"""
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    before, after = map(int, out.stdout.split())
+    assert after == before, f"rendering left {after - before} helper thread(s) running"

@@ -45,10 +45,10 @@ RED, YELLOW = 255, 128
 _TLS_LEVEL = {0: RED, 1: RED, 2: YELLOW, 3: YELLOW}  # TLS_CODES index r, R, y, Y
 
 # OpenCV on the calling thread only. A worker is one process per core (SPEC §10), and with
-# its default pool OpenCV splits each warpAffine with helper threads that then spin
-# (sched_yield) until the next call: about 9 % of another core per worker, measured, and
-# one such thread per extra core on bigger machines. Same pixels either way (warpAffine
-# computes each output pixel alone; checked on 40 routes' records and logs).
+# its default pool (sized by the number of cores) OpenCV splits each warpAffine with helper
+# threads that then spin (sched_yield) until the next call: about 9 % of another core per
+# worker, measured. Same pixels either way (warpAffine computes each output pixel alone;
+# checked on 40 routes' records and logs).
 cv2.setNumThreads(1)
 
 

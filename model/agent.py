@@ -10,6 +10,12 @@ Torch runs on one thread per process (eval workers are processes, one per core).
 network runs as a TorchScript trace at batch 1 (``traced``): the same ATen kernels in the
 same order as the eager module, so the same outputs bit for bit (tests/test_model.py), at
 about 0.9 instead of 1.3 ms per frame, the Python module overhead gone.
+
+A tick whose network inputs (binarised BEV, target point and speed as float32) equal the
+previous tick's bit for bit gets the previous tick's outputs without running the network
+again: a standing ego in a still scene. The traced network is a pure function of its
+inputs (same inputs, same outputs: tests/test_student_controller.py), so records do not
+change; on ``town12_short`` 19 % of the shipped student's ticks repeat (docs/scale.md).
 """
 from __future__ import annotations
 
@@ -74,11 +80,17 @@ class StudentAgent(AutonomousAgent):
         st = path.stat()
         self.model, self.manifest, self.network = _loaded((str(path.resolve()), st.st_mtime_ns, st.st_size))
         self.controller = SimLingoController()
+        self._forget()
 
     def use(self, model: torch.nn.Module) -> None:
         """Drive with ``model`` (put in eval mode and traced for speed)."""
         self.model = model.eval()
         self.network = traced(self.model)
+        self._forget()
+
+    def _forget(self) -> None:
+        self._last = None  # (x, target point, speed, path, speed waypoints) of the last network call
+        self.frames = self.network_calls = 0  # predict calls, and those that ran the network
 
     def check_config(self, config: str | None) -> None:
         if not config:
@@ -89,13 +101,28 @@ class StudentAgent(AutonomousAgent):
         return [{"type": "bev", "id": "bev"}, {"type": "target_point", "id": "target_point"},
                 {"type": "speed", "id": "speed"}]
 
-    @torch.inference_mode()
     def predict(self, bev: np.ndarray, target_point: np.ndarray, speed: float) -> tuple[np.ndarray, np.ndarray]:
-        """(path (20, 2), speed waypoints (10, 2)) [m], ego frame, for one frame's inputs."""
-        x = torch.from_numpy(binarize(bev)[None].astype(np.float32))  # (1, 9, 64, 64)
+        """(path (20, 2), speed waypoints (10, 2)) [m], ego frame, for one tick's inputs: bev
+        (9, 64, 64) uint8, target point (2,) [m] ego frame, speed [m/s]. Inputs equal to the
+        previous call's, as the network sees them, give the previous outputs (module doc)."""
+        x = binarize(bev)  # (9, 64, 64) bool
+        tp = np.asarray(target_point, dtype=np.float32)
+        sp = np.float32(speed)
+        self.frames += 1
+        last = self._last
+        if last is None or sp != last[2] or not np.array_equal(tp, last[1]) or not np.array_equal(x, last[0]):
+            self.network_calls += 1
+            last = self._last = (x, tp, sp, *self.infer(x, tp, sp))
+        return last[3].copy(), last[4].copy()
+
+    @torch.inference_mode()
+    def infer(self, x: np.ndarray, target_point: np.ndarray, speed: float) -> tuple[np.ndarray, np.ndarray]:
+        """One network call: x the binarised BEV (9, 64, 64) (bool or {0, 1}), target point (2,)
+        [m] and speed [m/s] -> (path (20, 2), speed waypoints (10, 2)) [m], ego frame."""
+        xt = torch.from_numpy(x[None].astype(np.float32))  # (1, 9, 64, 64)
         tp = torch.as_tensor(np.asarray(target_point, dtype=np.float32)[None])  # (1, 2)
-        sp = torch.full((1,), speed, dtype=torch.float32)  # (1,)
-        path, speed_wps = self.network(x, tp, sp)
+        sp = torch.full((1,), float(speed), dtype=torch.float32)  # (1,)
+        path, speed_wps = self.network(xt, tp, sp)
         return path[0].numpy().astype(float), speed_wps[0].numpy().astype(float)
 
     def run_step(self, input_data: dict, timestamp: float) -> tuple[Control, Prediction]:

@@ -41,11 +41,13 @@ def _eval_figures(agent: str, agent_config: str | None, workers: int) -> dict:
 
 
 def _bare_inference(agent_name: str, agent_config: str | None):
-    """For a student agent: a function timing its own ``predict`` (the network call of its
-    ``run_step``: binarised BEV, target point, speed in; path and speed waypoints out) on
-    recorded sensor inputs, with its checkpoint and thread setting, ms per call; else None."""
+    """For a student agent: a function timing its own network call (binarised BEV, target
+    point, speed in; path and speed waypoints out: ``infer`` after ``binarize``, what
+    ``predict`` runs on a tick whose inputs are new) on recorded sensor inputs, with its
+    checkpoint and thread setting, ms per call; else None."""
     from harness.agent import load_agent
     from model.agent import StudentAgent
+    from model.cache import binarize
     agent = load_agent(agent_name)
     if not isinstance(agent, StudentAgent):
         return None
@@ -54,10 +56,12 @@ def _bare_inference(agent_name: str, agent_config: str | None):
         agent.setup(agent_config)  # the checkpoint, torch on INFERENCE_THREADS threads
         frames = [(d["bev"], d["target_point"], float(d["speed"])) for d in inputs]
         for i in range(warmup):
-            agent.predict(*frames[i % len(frames)])
+            bev, tp, speed = frames[i % len(frames)]
+            agent.infer(binarize(bev), tp, speed)
         t0 = time.perf_counter()
         for i in range(calls):
-            agent.predict(*frames[i % len(frames)])
+            bev, tp, speed = frames[i % len(frames)]
+            agent.infer(binarize(bev), tp, speed)
         return 1000 * (time.perf_counter() - t0) / calls
     return infer_ms
 
@@ -82,10 +86,11 @@ def _bench(args: argparse.Namespace) -> int:
     r["student"] = run_student_bench()
     loop = r["closed_loop"]
     infer = loop.setdefault("bare_inference_ms", 0.0)  # 0 for a rule-based agent
+    share = loop.setdefault("network_share", 0.0)
     loop.setdefault("harness_over_bare_plus_inference", loop["harness_over_bare"])
     print(format_bench(loop))
     print(f"  harness / (bare + inference) {loop['harness_over_bare_plus_inference']:.2f} x  "
-          f"(inference {infer:.2f} ms; target <= {OVERHEAD_TARGET:g} x)")
+          f"(inference {infer:.2f} ms, run on {share:.0%} of ticks; target <= {OVERHEAD_TARGET:g} x)")
     c = r["collect"]
     print(f"collect (expert, 4 Hz episode files), one worker on {c['collect_routes']}: "
           f"{c['collect_sim_s_per_wall_s']:.1f} simulated s per wall s (target >= {c['collect_target']:g})")

@@ -99,6 +99,37 @@ def test_resample_path_every_tenth_of_a_metre_from_the_origin():
     np.testing.assert_array_equal(resample_path(np.zeros((20, 2))), [[0.0, 0.0]])  # degenerate
 
 
+def test_the_student_runs_its_network_only_for_new_inputs_and_repeats_give_its_outputs(tmp_path):
+    """A tick whose inputs equal the previous tick's as the network sees them (binarised
+    BEV, float32 target point and speed) reuses the previous outputs; every output equals
+    a fresh network call on that tick's inputs, bit for bit, so records cannot change."""
+    from model.cache import binarize
+    from model.checkpoint import save_checkpoint
+    from model.network import NetConfig, Student
+    torch.manual_seed(0)
+    agent = load_agent("student")
+    agent.setup(str(save_checkpoint(tmp_path / "student.pt", Student(NetConfig()), {})))
+    rng = np.random.default_rng(0)
+    a = (rng.random((9, 64, 64)) < 0.2).astype(np.uint8) * 255
+    b = a.copy()
+    b[4, 20:24, 30:34] = 255 - b[4, 20:24, 30:34]  # a vehicle moved
+    a_dim = np.where(a > 0, 200, 0).astype(np.uint8)  # the same raster once binarised
+    tp = np.array([12.0, 0.5])
+    ticks = [(a, tp, 3.0), (a, tp.copy(), 3.0), (a_dim, tp, 3.0), (a, tp, 3.0 + 1e-12),  # repeats
+             (b, tp, 3.0), (a, tp, 3.0), (a, tp + 1e-3, 3.0), (a, tp + 1e-3, 0.0)]  # new inputs
+    for k, (bev, target, speed) in enumerate(ticks):
+        path, wps = agent.predict(bev, target, speed)
+        fresh_path, fresh_wps = agent.infer(binarize(bev), target, speed)
+        np.testing.assert_array_equal(path, fresh_path, err_msg=f"tick {k}")
+        np.testing.assert_array_equal(wps, fresh_wps, err_msg=f"tick {k}")
+    assert (agent.frames, agent.network_calls) == (8, 5)  # 3 of the 8 ticks reused the outputs
+    path[:] = np.nan  # a caller writing into the outputs does not reach the agent's copy
+    assert np.isfinite(agent.predict(a, tp + 1e-3, 0.0)[0]).all() and agent.network_calls == 5
+    agent.setup(str(tmp_path / "student.pt"))  # a new route forgets the last inputs
+    agent.predict(a, tp + 1e-3, 0.0)
+    assert (agent.frames, agent.network_calls) == (1, 1)
+
+
 def test_student_agent_returns_a_control_and_its_waypoints(tmp_path):
     from model.checkpoint import save_checkpoint
     from model.network import NetConfig, Student

@@ -106,7 +106,7 @@ class StudentAgent(AutonomousAgent):
         (9, 64, 64) uint8, target point (2,) [m] ego frame, speed [m/s]. Inputs equal to the
         previous call's, as the network sees them, give the previous outputs (module doc)."""
         x = binarize(bev)  # (9, 64, 64) bool
-        tp = np.asarray(target_point, dtype=np.float32)
+        tp = np.array(target_point, dtype=np.float32)  # a copy: kept for the next tick's comparison
         sp = np.float32(speed)
         self.frames += 1
         last = self._last

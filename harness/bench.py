@@ -106,7 +106,7 @@ def run_bench(routes_name: str = "town12_smoke", n_routes: int = 4, bev_frames: 
     t0 = time.perf_counter()
     for i in range(bev_frames):
         ego, snap, plan, lights, props = snaps[i % len(snaps)]
-        renderer.render(ego, snap, plan, lights, props)
+        renderer.draw(ego, snap, plan, lights, props)  # a drawing: render could reuse its last frame
     bev_ms = 1000 * (time.perf_counter() - t0) / bev_frames
     h, b = float(np.mean(harness_ms)), float(np.mean(bare_ms))
     out = {"routes": f"{routes_name} (first {len(routes)})", "agent": agent,

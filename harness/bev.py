@@ -93,6 +93,7 @@ class BevRenderer:
                                   2, cv2.LINE_AA, shift=4)
         self.map = np.ascontiguousarray(layers.transpose(1, 2, 0))  # (h, w, 4) for warpAffine
         self._stop_lines: dict[tuple[str, int], np.ndarray] = {}
+        self._last = None  # (pose, lights and props key; plan; snapshot; frame) of the last drawing
         self.net = net
 
     @classmethod
@@ -110,7 +111,23 @@ class BevRenderer:
         return self._stop_lines[key]
 
     def render(self, ego, snap, plan, lights: list[int], props: list) -> np.ndarray:
-        """(9, SIZE, SIZE) uint8 BEV around ego (x, y, yaw, world frame).
+        """(9, SIZE, SIZE) uint8 BEV around ego (x, y, yaw, world frame): ``draw``'s frame.
+
+        A call whose inputs equal the previous call's (same ego pose, actor boxes, light
+        states, props and plan: a standing ego in a still scene, 20 % of the shipped
+        student's ticks on town12_short) gets a copy of the previous frame instead of a
+        new drawing; ``draw`` is a pure function of these inputs, so the pixels are the
+        same. Every call returns a new array: the caller may write into it."""
+        key = (ego.x, ego.y, ego.yaw, tuple(lights), tuple(map(tuple, props)))
+        last = self._last
+        if (last is not None and last[0] == key and last[1] is plan and _same_boxes(last[2], snap)):
+            return last[3].copy()
+        out = self.draw(ego, snap, plan, lights, props)
+        self._last = (key, plan, snap, out.copy())
+        return out
+
+    def draw(self, ego, snap, plan, lights: list[int], props: list) -> np.ndarray:
+        """(9, SIZE, SIZE) uint8 BEV around ego (x, y, yaw, world frame), drawn.
 
         Every world point of the frame (route, stop lines, box corners) goes through one
         ego-to-pixel transform, and each channel is drawn with one OpenCV call per group."""
@@ -156,6 +173,12 @@ class BevRenderer:
                 if kind in present:
                     cv2.fillPoly(out[ch], list(box_px[cls == kind]), 255, cv2.LINE_8, shift=4)
         return out
+
+
+def _same_boxes(a, b) -> bool:
+    """Whether two snapshots draw the same actor boxes (positions, headings, sizes, classes)."""
+    return (np.array_equal(a.xy, b.xy) and np.array_equal(a.yaw, b.yaw) and np.array_equal(a.size, b.size)
+            and np.array_equal(a.cls, b.cls))
 
 
 def _offset(pts: np.ndarray, d: float) -> np.ndarray:

@@ -26,17 +26,33 @@ def second_difference(u: np.ndarray, dt: float = DT) -> float:
     return float(np.mean(np.abs(u[2:] - 2 * u[1:-1] + u[:-2])) / dt ** 2)
 
 
+def quadratic_fits(s: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """(T, 3) least-squares coefficients (c2, c1, c0) of y = c0 + c1 s + c2 s^2 for each row
+    of s, y (T, N): ``np.polyfit(s[t], y[t], 2)`` for all rows at once (one batched SVD
+    instead of T LAPACK calls: ~0.1 s a route less). The same method as polyfit: columns of
+    the Vandermonde matrix scaled to unit norm, singular values at or below N eps times the
+    largest dropped (the minimum-norm solution of a rank-deficient fit); it agrees with
+    polyfit to rounding (tests/test_stability.py)."""
+    vander = np.stack([s * s, s, np.ones_like(s)], axis=-1)  # (T, N, 3)
+    scale = np.sqrt((vander * vander).sum(axis=1))  # (T, 3) column norms
+    u, sv, vt = np.linalg.svd(vander / scale[:, None, :], full_matrices=False)
+    keep = sv > s.shape[1] * np.finfo(float).eps * sv[:, :1]
+    inv = np.divide(1.0, sv, out=np.zeros_like(sv), where=keep)  # (T, 3)
+    uty = np.einsum("tnk,tn->tk", u, y)  # (T, 3)
+    return np.einsum("tkj,tk->tj", vt, inv * uty) / scale
+
+
 def path_curvature(path: np.ndarray) -> np.ndarray:
-    """(T,) curvature at s = 0 of the quadratic fit of each path (T, N, 2) [1/m]."""
+    """(T,) curvature at s = 0 of the quadratic fit of each path (T, N, 2) [1/m]; NaN for a
+    path with a non-finite point or no length."""
     p = np.asarray(path, dtype=float)
     seg = np.hypot(*np.diff(p, axis=1).transpose(2, 0, 1))
     s = np.concatenate([np.zeros((len(p), 1)), np.cumsum(seg, axis=1)], axis=1)  # (T, N)
     out = np.full(len(p), np.nan)
-    for t in range(len(p)):
-        if not np.isfinite(p[t]).all() or s[t, -1] < 1e-6:
-            continue
-        c2, c1, _ = np.polyfit(s[t], p[t, :, 1], 2)
-        out[t] = 2 * c2 / (1 + c1 ** 2) ** 1.5
+    ok = np.isfinite(p).all(axis=(1, 2)) & (s[:, -1] >= 1e-6)
+    if ok.any():
+        c2, c1, _ = quadratic_fits(s[ok], p[ok, :, 1]).T
+        out[ok] = 2 * c2 / (1 + c1 ** 2) ** 1.5
     return out
 
 

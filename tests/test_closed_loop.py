@@ -146,6 +146,38 @@ def test_bev_places_an_actor_where_it_is(tmp_path):
     assert img[B.ROUTE, B.EGO_ROW - 5, B.SIZE // 2] > 0  # ... on its route
 
 
+def test_a_repeated_scene_gets_its_last_frame_and_any_change_is_drawn_anew(monkeypatch):
+    from harness.world import Snapshot
+    plan = build_plan(SMOKE[0], load_net("town12"))
+    x, y, yaw = plan.path.pose(0.0)
+    renderer = B.BevRenderer.for_town("town12")
+    drawn = []
+    draw = renderer.draw
+    monkeypatch.setattr(renderer, "draw", lambda *a: drawn.append(1) or draw(*a))
+
+    def scene(ahead=15.0, cls=0, ego_yaw=yaw, props=(), lights=(), route_plan=plan):
+        ax, ay = x + ahead * math.cos(yaw), y + ahead * math.sin(yaw)
+        snap = Snapshot(["v"], np.array([[ax, ay]]), np.array([yaw]), np.zeros(1), np.array([[4.0, 2.0]]),
+                        np.array([cls]), math.nan)
+        return EgoState(x, y, ego_yaw, 0.0), snap, route_plan, list(lights), list(props)
+
+    first = renderer.render(*scene())
+    again = renderer.render(*scene())  # equal inputs in new objects: no new drawing
+    assert len(drawn) == 1 and np.array_equal(again, first) and again is not first
+    again[:] = 0  # the caller owns what it gets: the kept frame is not touched
+    assert np.array_equal(renderer.render(*scene()), first) and len(drawn) == 1
+    changes = [scene(ahead=10.0), scene(cls=B.STATIC), scene(ego_yaw=yaw + 0.3),
+               scene(props=[(x + 8 * math.cos(yaw), y + 8 * math.sin(yaw), yaw, 4.6, 1.9)]),
+               scene(lights=[0, 0]),  # the route's two lights red (out of view from here)
+               scene(route_plan=build_plan(SMOKE[3], load_net("town12")))]  # another route
+    for inputs in changes:  # each differs from the scene in one thing
+        assert np.array_equal(renderer.render(*scene()), first)
+        n = len(drawn)
+        out = renderer.render(*inputs)
+        assert len(drawn) == n + 1 and np.array_equal(out, draw(*inputs))
+        assert inputs[3] or inputs[2] is not plan or not np.array_equal(out, first)
+
+
 def test_smoke_run_on_two_workers_and_determinism(tmp_path, capsys):
     """The CI smoke run (town12_smoke on 2 workers), and the same run on 1 worker gives the
     same records and logs (wall time aside)."""

@@ -20,6 +20,8 @@ records into the same files in completion order.
 """
 from __future__ import annotations
 
+import ctypes
+import ctypes.util
 import json
 import multiprocessing as mp
 import os
@@ -146,6 +148,30 @@ def rss_mb() -> float:
         return round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, 1)  # KiB on Linux
 
 
+def release_freed_memory() -> bool:
+    """Hand the heap pages freed since the last call back to the system (glibc's
+    ``malloc_trim``); returns whether it could (False off glibc, e.g. macOS or musl).
+
+    A route's log, metrics and temporaries grow with its length and are freed when it ends,
+    but glibc keeps freed pages mapped below a live block: without this, a worker's resident
+    memory keeps the high-water mark of its longest route so far (+9 MB after the 8,563-tick
+    route 46 of town12_short), which reads as growth in the soak figure (docs/reliability.md)."""
+    global _libc
+    if _libc is None:
+        try:
+            lib = ctypes.CDLL(ctypes.util.find_library("c")) if os.name == "posix" else None
+        except OSError:
+            lib = None
+        _libc = lib if lib is not None and hasattr(lib, "malloc_trim") else False
+    if _libc is False:
+        return False
+    _libc.malloc_trim(0)
+    return True
+
+
+_libc = None  # glibc once loaded by release_freed_memory, False where there is none
+
+
 def worker_stats(routes_run: int) -> dict:
     """This worker process after a route: host, pid, routes it has run, resident memory [MB]."""
     return {"host": socket.gethostname(), "pid": os.getpid(), "routes": routes_run, "rss_mb": rss_mb()}
@@ -163,6 +189,7 @@ def _worker(conn) -> None:
             return
         rec = run_job_safely(job)
         routes_run += 1
+        release_freed_memory()  # before the memory sample: what the worker holds, not its peak
         try:
             conn.send((rec, worker_stats(routes_run)))
         except OSError:  # the parent is gone (killed): nobody to report to

@@ -70,8 +70,10 @@ def test_unknown_hazard_type(tmp_path, capsys):
 def test_length_outside_set_bounds(tmp_path, capsys):
     text = SMOKE.replace('max_length="220"', 'max_length="150"')
     code, out = _run(capsys, "routes", "check", _bad(tmp_path, text))
-    assert code == 2
-    assert all("outside the set's bounds" in ln for ln in out.splitlines())
+    lines = out.splitlines()
+    assert code == 2 and len(lines) == 2  # routes 0 and 2 (164.5 and 159.25 m) are longer than 150 m
+    assert "route 0: length 164.5 m" in lines[0] and "route 2: length 159.2 m" in lines[1]
+    assert all("is outside the set's bounds [120, 150] m" in ln for ln in lines)
 
 
 def test_entity_expansion_is_refused(tmp_path, capsys):

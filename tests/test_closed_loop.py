@@ -168,14 +168,14 @@ def test_a_repeated_scene_gets_its_last_frame_and_any_change_is_drawn_anew(monke
     assert np.array_equal(renderer.render(*scene()), first) and len(drawn) == 1
     changes = [scene(ahead=10.0), scene(cls=B.STATIC), scene(ego_yaw=yaw + 0.3),
                scene(props=[(x + 8 * math.cos(yaw), y + 8 * math.sin(yaw), yaw, 4.6, 1.9)]),
-               scene(lights=[0, 0]),  # the route's two lights red (out of view from here)
+               scene(lights=[0, 0]),  # the route's two lights red
                scene(route_plan=build_plan(SMOKE[3], load_net("town12")))]  # another route
     for inputs in changes:  # each differs from the scene in one thing
         assert np.array_equal(renderer.render(*scene()), first)
         n = len(drawn)
         out = renderer.render(*inputs)
         assert len(drawn) == n + 1 and np.array_equal(out, draw(*inputs))
-        assert inputs[3] or inputs[2] is not plan or not np.array_equal(out, first)
+        assert not np.array_equal(out, first)  # each change shows in the picture
 
 
 def test_smoke_run_on_two_workers_and_determinism(tmp_path, capsys):
@@ -286,10 +286,12 @@ def test_the_hard_braking_leader_appears_gap_ahead_of_the_ego(short_routes, rid)
     res = run_episode(route, "expert", None, route_seed(0, idx), on_frame=on_frame)
     assert res.status == "Completed" and first, "the leader never appeared"
     ahead, off = first[0]
-    # its front is placed gap m ahead of the ego's centre: its centre 2.3 m less, a tick of
-    # driving later; it is on the lane nearest the route (route 50 is mid-way through a
-    # lane change there: 1.7 m)
-    assert gap - 4.0 < ahead < gap and off < 2.0, (ahead, off)
+    # it is on the lane nearest the route (route 50 is mid-way through a lane change there: 1.7 m)
+    # its front is placed gap m ahead of the ego's centre, so its centre (4.6 m long) 2.3 m
+    # less; by the first frame that sees it, either has driven up to one tick (0.7 m at
+    # 14 m/s), and its projection onto the route, 1.7 m off it, may move by 0.1 m. Measured:
+    # gap - 2.21 (route 40), gap - 2.92 (route 50: the ego drove 0.6 m more than the leader)
+    assert gap - 3.1 < ahead < gap - 1.6 and off < 2.0, (ahead, off)
 
 
 def test_bev_rendering_starts_no_helper_threads():

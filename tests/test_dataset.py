@@ -45,10 +45,12 @@ def test_a_stored_frame_renders_the_closed_loop_bev_bit_for_bit(episode):
 def test_labels_have_the_documented_shapes_and_meaning(episode):
     a = episode.a
     assert a["path"].shape[1:] == (20, 2) and a["speed_wps"].shape[1:] == (10, 2)
-    # path points lie 1 m apart along the path, starting at the ego
+    # path points lie 1 m apart along the path, starting at the ego: each step is the chord
+    # of a 1 m arc, at most 1 m and at least 0.99 m (the chord on a 2 m radius, sharper than
+    # any lane); measured 0.9969-1.0000, 3 of the 3,382 steps below 0.999
     steps = np.hypot(*np.diff(a["path"], axis=1).transpose(2, 0, 1))
     np.testing.assert_allclose(a["path"][:, 0], 0.0, atol=1e-9)
-    assert np.all(steps <= 1.0 + 1e-6) and np.median(steps) == pytest.approx(1.0, abs=0.01)
+    assert np.all(steps <= 1.0 + 1e-9) and np.all(steps >= 0.99) and np.mean(steps < 0.999) < 0.01
     # speed waypoint k is where the ego is 0.25 (k + 1) s later: the distance to the first one
     # is close to 0.25 s x speed (the ego accelerates or brakes a little within 0.25 s)
     d0 = np.hypot(*a["speed_wps"][:, 0].T)
@@ -61,7 +63,9 @@ def test_augmentation_moves_image_and_labels_together(episode):
     plain, moved = episode.bev(k), episode.bev(k, shift=shift)
     rows = slice(B.EGO_ROW - 10, B.EGO_ROW)
     col = lambda img: np.average(np.arange(B.SIZE), weights=img[B.ROUTE, rows].sum(axis=0))  # noqa: E731
-    assert col(moved) - col(plain) == pytest.approx(shift / B.RES, abs=0.5)
+    # 2 whole pixels move every route pixel by 2 columns (measured 2.0 on 45 frames); 0.1 px
+    # is far below the 0.5 px that a wrong scale (1 m per px: 1.5 px) would show
+    assert col(moved) - col(plain) == pytest.approx(shift / B.RES, abs=0.1)
     lp, lm = episode.labels(k), episode.labels(k, shift=shift)
     np.testing.assert_allclose(lm["path"], lp["path"] - (0.0, shift))
     rot = 0.1

@@ -109,7 +109,8 @@ def test_per_km_rates_and_the_outside_lanes_kilometre_special_case():
     assert g["infractions"]["red_light"] == 0.0
     # outside lanes: metres of each route's first message / 1000, summed, NOT divided by km
     assert g["infractions"]["outside_route_lanes"] == 0.18
-    assert g["status"] == "Failed" or g["status"] == "Completed"
+    assert g["status"] == "Failed"  # route 1 ended at RC 50: "Failed" whatever the other route did
+    assert g["meta"]["exceptions"] == [["RouteScenario_1_rep0", 1, "Failed"]]
 
 
 def _carla_file():

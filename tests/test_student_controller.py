@@ -142,7 +142,11 @@ def test_student_agent_returns_a_control_and_its_waypoints(tmp_path):
     control, pred = agent.run_step({"bev": bev, "target_point": np.array([12.0, 0.0]), "speed": 3.0}, 0.05)
     assert isinstance(control, Control) and control.is_finite() and isinstance(pred, Prediction)
     assert pred.path.shape == (20, 2) and pred.speed_wps.shape == (10, 2)
+    assert agent.network_calls == 1
+    agent._forget()  # else the same inputs would return the stored outputs without a network call
     path, wps = agent.predict(bev, np.array([12.0, 0.0]), 3.0)
-    np.testing.assert_array_equal(path, pred.path)  # inference is deterministic
+    assert agent.network_calls == 1  # a second, fresh run of the network ...
+    np.testing.assert_array_equal(path, pred.path)  # ... gives the same outputs: inference is deterministic
+    np.testing.assert_array_equal(wps, pred.speed_wps)
     with pytest.raises(ValueError, match="agent-config"):
         load_agent("student").setup(None)

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from controller.pid import LateralPID, PID, SpeedPID
-from controller.vehicle import DT, LR, EgoState, EgoVehicle, Control, bicycle_step, next_speed
+from controller.vehicle import DT, LF, LR, EgoState, EgoVehicle, Control, bicycle_step, next_speed
 from harness.contacts import overlaps
 
 
@@ -24,18 +24,24 @@ def test_bicycle_goes_straight_without_steer_and_turns_right_with_positive_steer
     s = bicycle_step(EgoState(0.0, 0.0, 0.0, 10.0), 0.0, 10.0)
     assert (s.x, s.y, s.yaw) == pytest.approx((10.0 * DT, 0.0, 0.0))
     r = bicycle_step(EgoState(0.0, 0.0, 0.0, 10.0), 0.5, 10.0)
-    delta = -0.36848336 * 0.5
-    beta = math.atan(LR / (LR - 0.090769015) * math.tan(delta))
-    assert r.yaw == pytest.approx(10.0 / LR * math.sin(beta) * DT)
+    # the other textbook form of the kinematic bicycle (centre of gravity LR ahead of the rear
+    # axle): slip angle tan(beta) = LR / L tan(delta), yaw rate v cos(beta) tan(delta) / L,
+    # velocity along yaw + beta; half lock = 0.5 x 0.36848336 rad of wheel angle, to the right
+    delta, wheelbase = -0.5 * 0.36848336, LF + LR
+    beta = math.atan(LR / wheelbase * math.tan(delta))
+    assert r.yaw == pytest.approx(10.0 * math.cos(beta) * math.tan(delta) / wheelbase * DT, rel=1e-12)
+    assert (r.x, r.y) == pytest.approx((10.0 * math.cos(beta) * DT, 10.0 * math.sin(beta) * DT), rel=1e-12)
     assert r.yaw < 0 and r.y < 0  # clockwise, to the right
 
 
 def test_actuation_noise_is_seeded():
     a = EgoVehicle(EgoState(0, 0, 0, 5.0), np.random.default_rng(3))
     b = EgoVehicle(EgoState(0, 0, 0, 5.0), np.random.default_rng(3))
+    c = EgoVehicle(EgoState(0, 0, 0, 5.0), np.random.default_rng(4))
     for _ in range(50):
-        sa, sb = a.step(Control(0.1, 0.5, 0.0)), b.step(Control(0.1, 0.5, 0.0))
-    assert sa == sb
+        sa, sb, sc = a.step(Control(0.1, 0.5, 0.0)), b.step(Control(0.1, 0.5, 0.0)), c.step(Control(0.1, 0.5, 0.0))
+    assert sa == sb  # the same seed, the same noise
+    assert sc.x != sa.x and sc.yaw != sa.yaw  # another seed, other noise (the noise is there)
 
 
 def test_pid_window_is_prefilled_with_zeros():

@@ -286,11 +286,11 @@ def test_the_hard_braking_leader_appears_gap_ahead_of_the_ego(short_routes, rid)
     res = run_episode(route, "expert", None, route_seed(0, idx), on_frame=on_frame)
     assert res.status == "Completed" and first, "the leader never appeared"
     ahead, off = first[0]
-    # it is on the lane nearest the route (route 50 is mid-way through a lane change there: 1.7 m)
     # its front is placed gap m ahead of the ego's centre, so its centre (4.6 m long) 2.3 m
     # less; by the first frame that sees it, either has driven up to one tick (0.7 m at
     # 14 m/s), and its projection onto the route, 1.7 m off it, may move by 0.1 m. Measured:
-    # gap - 2.21 (route 40), gap - 2.92 (route 50: the ego drove 0.6 m more than the leader)
+    # gap - 2.21 (route 40), gap - 2.92 (route 50: the ego drove 0.6 m more than the leader).
+    # It is on the lane nearest the route (route 50 is mid-way through a lane change there: 1.7 m)
     assert gap - 3.1 < ahead < gap - 1.6 and off < 2.0, (ahead, off)
 
 

@@ -13,6 +13,13 @@ measured in the same run (SPEC §11). Never a timed test: numbers to read, not t
   after it; it counts on the share of ticks that ran the network (``network_share``: a student skips
   ticks whose inputs repeat the previous tick's, model.agent), so the overhead ratio is
   harness step / (bare libsumo step + network share x bare inference);
+- bare libsumo step with the network between steps (a learned agent, for reading, not a
+  target): the same replay with ``network_between(inputs)()``, the agent's network call on
+  the recorded inputs, run untimed before every step. On this machine SUMO's step costs
+  about 2.5x more when anything runs between two steps, its caches cooling with the time
+  spent elsewhere (docs/scale.md, session 11): this figure is the SUMO cost any closed
+  loop with this network pays here, and the overhead ratio over it shows what the
+  harness's own work adds;
 - BEV render: one 64 x 64 x 9 frame, averaged over many frames of real snapshots;
 - collect: simulated seconds per wall second of one worker recording the expert (issue
   #5's ">= 20"): ``run_job`` as ``sumo-scimm collect`` runs it, episode file and log saved.
@@ -41,9 +48,13 @@ from sumo_nets import load_net
 SAMPLE_EVERY = 50  # ticks between the frames kept for the BEV and inference figures
 
 
-def _bare_step_ms(route: Route, seed: int, log: EpisodeLog) -> tuple[float, bool]:
+def _bare_step_ms(route: Route, seed: int, log: EpisodeLog,
+                  between: Callable[[], object] | None = None) -> tuple[float, bool]:
     """(per-tick cost [ms] of SUMO and its traffic alone, replaying the ego of a harness
-    log; whether the replay reproduced the episode's traffic)."""
+    log; whether the replay reproduced the episode's traffic).
+
+    ``between()``, if given, runs before every step, untimed (the agent's network: what
+    sits between two steps in a closed loop)."""
     net = load_net(route.town)
     plan = build_plan(route, net)
     ss = np.random.SeedSequence(seed)  # the generators and SUMO seed of run_episode
@@ -57,6 +68,8 @@ def _bare_step_ms(route: Route, seed: int, log: EpisodeLog) -> tuple[float, bool
         busy, same = 0.0, True
         for k in range(len(xs)):
             s, ego_s = EgoState(xs[k], ys[k], yaws[k], vs[k]), float(plan.s[progress[k]])
+            if between is not None:
+                between()
             t0 = time.perf_counter()
             scene.advance(s, ego_s)
             busy += time.perf_counter() - t0
@@ -69,11 +82,14 @@ def _bare_step_ms(route: Route, seed: int, log: EpisodeLog) -> tuple[float, bool
 
 def run_bench(routes_name: str = "town12_smoke", n_routes: int = 4, bev_frames: int = 2000,
               agent: str = "route_follower", agent_config: str | None = None,
-              bare_inference: Callable[[list[dict]], float] | None = None) -> dict:
+              bare_inference: Callable[[list[dict]], float] | None = None,
+              network_between: Callable[[list[dict]], Callable[[], object]] | None = None) -> dict:
     """Measure and return the figures (one process, one core) with ``agent`` driving.
 
     ``bare_inference(inputs) -> ms``: the agent's inference alone on a list of its sensor
     inputs (dicts as ``run_step`` gets them) from sampled ticks of an episode.
+    ``network_between(inputs) -> call``: a function running the agent's network once, on
+    the next of those inputs (for the replay with the network between steps).
 
     Both references are timed route by route, right after the route's episode: this
     machine's speed moves between two levels within minutes (docs/scale.md), and a
@@ -81,7 +97,7 @@ def run_bench(routes_name: str = "town12_smoke", n_routes: int = 4, bev_frames: 
     The figures are means over the routes; ``per_route`` keeps each route's."""
     _, routes = read_routes(resolve_set(routes_name))
     routes = routes[:n_routes]
-    harness_ms, bare_ms, same, snaps, shares, infer_ms = [], [], [], [], [], []
+    harness_ms, bare_ms, same, snaps, shares, infer_ms, between_ms = [], [], [], [], [], [], []
     for k, route in enumerate(routes):
         seed = route_seed(0, k)
         kept, driver = [], {}
@@ -110,6 +126,10 @@ def run_bench(routes_name: str = "town12_smoke", n_routes: int = 4, bev_frames: 
                                         lambda f=f: bev.render(f.ego, f.snap, f.plan, f.lights, f.props)))
         if bare_inference is not None and inputs:  # right after the episode, as the libsumo replay
             infer_ms.append(bare_inference(inputs))
+        if network_between is not None and inputs:
+            ms, ok = _bare_step_ms(route, seed, res.log, between=network_between(inputs))
+            between_ms.append(ms)
+            same.append(ok)
     renderer = BevRenderer.for_town(routes[0].town)
     t0 = time.perf_counter()
     for i in range(bev_frames):
@@ -129,6 +149,11 @@ def run_bench(routes_name: str = "town12_smoke", n_routes: int = 4, bev_frames: 
         out["bare_inference_ms"] = round(float(np.mean(infer_ms)), 3)
         out["network_share"] = round(share, 3)
         out["harness_over_bare_plus_inference"] = round(h / (b + share * out["bare_inference_ms"]), 2)
+        if between_ms:
+            bn = float(np.mean(between_ms))
+            out["bare_libsumo_network_between_ms"] = round(bn, 3)
+            out["per_route"]["bare_libsumo_network_between_ms"] = [round(v, 3) for v in between_ms]
+            out["harness_over_network_between_plus_inference"] = round(h / (bn + share * out["bare_inference_ms"]), 2)
     return out
 
 

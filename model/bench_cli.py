@@ -4,7 +4,8 @@ measured in the same run, printed as a table and optionally written as JSON.
 - closed loop (``harness.bench``): harness step with the chosen agent against bare libsumo
   stepping of the same traffic with the ego replayed, plus, for a student, its bare
   inference (its own checkpoint's ``predict`` on inputs recorded in the same episodes, one
-  thread); BEV render;
+  thread), and, for reading, the libsumo replay with that network run between steps; BEV
+  render;
 - teacher (``scimm.bench``): batched IMM frames per second on one core against filterpy's
   IMMEstimator on the same sequences, and the largest difference between them;
 - student (``model.bench``): training samples per second on 2 threads, inference ms per
@@ -19,6 +20,7 @@ Figures are for reading, never asserted in a test; they depend on the machine's 
 from __future__ import annotations
 
 import argparse
+import itertools
 import json
 import tempfile
 import time
@@ -41,19 +43,30 @@ def _eval_figures(agent: str, agent_config: str | None, workers: int) -> dict:
 
 
 def _bare_inference(agent_name: str, agent_config: str | None):
-    """For a student agent: a function timing its own network call (binarised BEV, target
+    """For a student agent: (a function timing its own network call (binarised BEV, target
     point, speed in; path and speed waypoints out: ``infer`` after ``binarize``, what
     ``predict`` runs on a tick whose inputs are new) on recorded sensor inputs, with its
-    checkpoint and thread setting, ms per call; else None."""
+    checkpoint and thread setting, ms per call; a function giving a call that runs that
+    network once on the next of such inputs, for ``run_bench``'s ``network_between``);
+    else (None, None)."""
     from harness.agent import load_agent
     from model.agent import StudentAgent
     from model.cache import binarize
     agent = load_agent(agent_name)
     if not isinstance(agent, StudentAgent):
-        return None
+        return None, None
+
+    def network_between(inputs: list[dict]):
+        agent.setup(agent_config)  # the checkpoint, torch on INFERENCE_THREADS threads
+        frames = [(binarize(d["bev"]), d["target_point"], float(d["speed"])) for d in inputs]
+        calls = itertools.count()
+
+        def call():
+            agent.infer(*frames[next(calls) % len(frames)])
+        return call
 
     def infer_ms(inputs: list[dict], calls: int = 500, warmup: int = 20) -> float:
-        agent.setup(agent_config)  # the checkpoint, torch on INFERENCE_THREADS threads
+        agent.setup(agent_config)
         frames = [(d["bev"], d["target_point"], float(d["speed"])) for d in inputs]
         for i in range(warmup):
             bev, tp, speed = frames[i % len(frames)]
@@ -63,7 +76,7 @@ def _bare_inference(agent_name: str, agent_config: str | None):
             bev, tp, speed = frames[i % len(frames)]
             agent.infer(binarize(bev), tp, speed)
         return 1000 * (time.perf_counter() - t0) / calls
-    return infer_ms
+    return infer_ms, network_between
 
 
 def _bench(args: argparse.Namespace) -> int:
@@ -78,9 +91,10 @@ def _bench(args: argparse.Namespace) -> int:
         load_agent(args.agent)
     except AgentLoadError as exc:
         raise BadInput(str(exc)) from None
+    infer_ms, network_between = _bare_inference(args.agent, args.agent_config)
     r: dict = {"closed_loop": run_bench(args.routes, args.routes_count, agent=args.agent,
-                                       agent_config=args.agent_config,
-                                       bare_inference=_bare_inference(args.agent, args.agent_config))}
+                                       agent_config=args.agent_config, bare_inference=infer_ms,
+                                       network_between=network_between)}
     r["collect"] = collect_rate(args.routes, args.routes_count)
     r["teacher"] = run_imm_bench()
     r["student"] = run_student_bench()
@@ -91,6 +105,10 @@ def _bench(args: argparse.Namespace) -> int:
     print(format_bench(loop))
     print(f"  harness / (bare + inference) {loop['harness_over_bare_plus_inference']:.2f} x  "
           f"(inference {infer:.2f} ms, run on {share:.0%} of ticks; target <= {OVERHEAD_TARGET:g} x)")
+    if "bare_libsumo_network_between_ms" in loop:  # for reading: what SUMO costs with the network between steps
+        print(f"  for reading: bare libsumo step with the network run between steps "
+              f"{loop['bare_libsumo_network_between_ms']:.3f} ms/tick; harness / (that + inference) "
+              f"{loop['harness_over_network_between_plus_inference']:.2f} x (docs/scale.md)")
     c = r["collect"]
     print(f"collect (expert, 4 Hz episode files), one worker on {c['collect_routes']}: "
           f"{c['collect_sim_s_per_wall_s']:.1f} simulated s per wall s (target >= {c['collect_target']:g})")

@@ -15,11 +15,12 @@ measured in the same run (SPEC §11). Never a timed test: numbers to read, not t
   harness step / (bare libsumo step + network share x bare inference);
 - bare libsumo step with the network between steps (a learned agent, for reading, not a
   target): the same replay with ``network_between(inputs)()``, the agent's network call on
-  the recorded inputs, run untimed before every step. On this machine SUMO's step costs
-  about 2.5x more when anything runs between two steps, its caches cooling with the time
-  spent elsewhere (docs/scale.md, session 11): this figure is the SUMO cost any closed
-  loop with this network pays here, and the overhead ratio over it shows what the
-  harness's own work adds;
+  the recorded inputs, run untimed before every step (the loop runs it on the network
+  share of ticks, and its own work on the others). On this machine SUMO's step costs 2-3x
+  more so than back to back: its caches cool, partly with the time spent elsewhere alone,
+  partly from the network's own use of them (docs/scale.md, session 11). This figure is
+  the SUMO cost any closed loop with this network pays here; the overhead ratio over it
+  shows what the harness's own work adds;
 - BEV render: one 64 x 64 x 9 frame, averaged over many frames of real snapshots;
 - collect: simulated seconds per wall second of one worker recording the expert (issue
   #5's ">= 20"): ``run_job`` as ``sumo-scimm collect`` runs it, episode file and log saved.

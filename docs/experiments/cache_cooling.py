@@ -1,6 +1,6 @@
 """Does a core's cache cool with the time spent elsewhere? Two measurements (session 11).
 
-    python docs/experiments/cache_cooling.py [ROUTES]
+    python docs/experiments/cache_cooling.py [ROUTE_INDICES]
 
 1. The same 1 MB array (it fits the 2 MB L2 of this machine's cores) is summed right
    after a busy spin of 0 to 10 ms that touches almost no memory. On a machine whose
@@ -8,7 +8,7 @@
 2. SUMO's step (``Scene.advance``, the ``bare libsumo`` figure of ``sumo-scimm bench``)
    replays the logged ego of one episode of the shipped SC-IMM student, with nothing,
    a 1 ms busy spin, a 1 ms sleep or the student's network run (untimed) before every
-   step. ROUTES: town12_smoke route indices (default 1).
+   step. ROUTE_INDICES: town12_smoke route indices, comma-separated (default 1).
 
 Each variant runs ``REPEATS`` times in turn; the figures are the medians (1) and the
 means per tick (2) of each run. Analysis only: it changes no record.

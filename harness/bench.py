@@ -17,7 +17,7 @@ measured in the same run (SPEC §11). Never a timed test: numbers to read, not t
   target): the same replay with ``network_between(inputs)()``, the agent's network call on
   the recorded inputs, run untimed before every step (the loop runs it on the network
   share of ticks, and its own work on the others). On this machine SUMO's step costs 2-3x
-  more so than back to back: its caches cool, partly with the time spent elsewhere alone,
+  as much as back to back: its caches cool, partly with the time spent elsewhere alone,
   partly from the network's own use of them (docs/scale.md, session 11). This figure is
   the SUMO cost any closed loop with this network pays here; the overhead ratio over it
   shows what the harness's own work adds;

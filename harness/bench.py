@@ -92,7 +92,7 @@ def run_bench(routes_name: str = "town12_smoke", n_routes: int = 4, bev_frames: 
     ``network_between(inputs) -> call``: a function running the agent's network once, on
     the next of those inputs (for the replay with the network between steps).
 
-    Both references are timed route by route, right after the route's episode: this
+    The references are timed route by route, right after the route's episode: this
     machine's speed moves between two levels within minutes (docs/scale.md), and a
     reference timed minutes away from the step it divides can land on the other level.
     The figures are means over the routes; ``per_route`` keeps each route's."""

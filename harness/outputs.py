@@ -77,6 +77,9 @@ def _mean_of(key: str):
 
 
 def summary_rows(records: list[dict], result: dict) -> list[dict]:
+    """summary.csv's rows. The records are put in route order first: workers finish routes in
+    an order that changes from run to run, and the bootstrap draws records by position."""
+    records = _sorted(records)
     rng = np.random.default_rng(BOOTSTRAP_SEED)
     rows = []
     for name, stat in [("driving_score", _mean_of("ds")), ("route_completion", _mean_of("rc")),

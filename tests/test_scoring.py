@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import math
 
+import numpy as np
 import pytest
 
 from harness.cli import main
@@ -177,3 +178,23 @@ def test_rescoring_is_idempotent():
     data = rescore_results(_carla_file())
     assert rescore_results(data) == data
     assert not math.isnan(data["_checkpoint"]["global_record"]["scores_mean"]["score_penalty"])
+
+
+def test_summary_does_not_depend_on_the_order_routes_finished_in():
+    """Workers finish routes in an order that changes from run to run; summary.csv (values and
+    bootstrap intervals) must not. Before the fix the intervals followed the arrival order."""
+    from harness.outputs import summary_rows
+    from harness.runner import STABILITY
+    rng = np.random.default_rng(3)
+    records = [{"route_id": str(i), "repetition": 0, "ds": float(rng.uniform(0, 100)),
+                "rc": float(rng.uniform(50, 100)), "is": float(rng.uniform(0, 1)),
+                "collisions_layout": 0, "collisions_pedestrian": int(i % 7 == 0), "collisions_vehicle": int(i % 5 == 0),
+                "km_driven": float(rng.uniform(0.1, 1.0)), **{k: float(rng.uniform(0, 10)) for k in STABILITY}}
+               for i in range(40)]
+    result = {"_checkpoint": {"global_record": {"infractions": {}}}}
+    in_order = summary_rows(records, result)
+    shuffled = [records[i] for i in rng.permutation(len(records))]
+    assert summary_rows(shuffled, result) == in_order
+    reversed_ = summary_rows(records[::-1], result)
+    assert reversed_ == in_order
+    assert in_order[0]["ci95_low"] < in_order[0]["value"] < in_order[0]["ci95_high"]

@@ -15,7 +15,9 @@ measured in the same run, printed as a table and optionally written as JSON.
 - with ``--eval``: wall time of a whole ``town12_short`` evaluation on 2 workers with the
   agent, and the worker memory (RSS) over it.
 
-Figures are for reading, never asserted in a test; they depend on the machine's load.
+The run prints and writes the machine it ran on (CPU model, cores, torch's kernels,
+versions). Figures are for reading, never asserted in a test; they depend on the machine
+and its load.
 """
 from __future__ import annotations
 
@@ -40,6 +42,27 @@ def _eval_figures(agent: str, agent_config: str | None, workers: int) -> dict:
         wall = time.perf_counter() - t0
         return {"eval_wall_s": round(wall, 1), "eval_workers": workers, "eval_target_s": EVAL_TARGET_S,
                 "rss": rss_summary(Path(tmp) / "run"), "rss_target_mb": RSS_TARGET_MB}
+
+
+def machine() -> dict:
+    """What the figures were measured on: CPU model, cores, the kernels torch picked, and the
+    versions that set the per-tick cost. Figures of two runs compare only on the same kind of
+    machine (and a student's records only on the same CPU type: docs/reliability.md)."""
+    import importlib.metadata
+    import os
+    import platform
+
+    import torch
+    cpu = platform.processor() or platform.machine()
+    try:
+        with open("/proc/cpuinfo") as f:
+            cpu = next((ln.split(":", 1)[1].strip() for ln in f if ln.startswith("model name")), cpu)
+    except OSError:  # not Linux
+        pass
+    return {"cpu": cpu, "cores": os.cpu_count(), "torch": torch.__version__,
+            "torch_cpu_capability": torch.backends.cpu.get_cpu_capability(),
+            "libsumo": importlib.metadata.version("libsumo"), "numpy": importlib.metadata.version("numpy"),
+            "python": platform.python_version()}
 
 
 def _bare_inference(agent_name: str, agent_config: str | None):
@@ -91,8 +114,11 @@ def _bench(args: argparse.Namespace) -> int:
         load_agent(args.agent)
     except AgentLoadError as exc:
         raise BadInput(str(exc)) from None
+    m = machine()
+    print(f"machine: {m['cpu']}, {m['cores']} cores; torch {m['torch']} ({m['torch_cpu_capability']} kernels), "
+          f"libsumo {m['libsumo']}, numpy {m['numpy']}, Python {m['python']}")
     infer_ms, network_between = _bare_inference(args.agent, args.agent_config)
-    r: dict = {"closed_loop": run_bench(args.routes, args.routes_count, agent=args.agent,
+    r: dict = {"machine": m, "closed_loop": run_bench(args.routes, args.routes_count, agent=args.agent,
                                        agent_config=args.agent_config, bare_inference=infer_ms,
                                        network_between=network_between)}
     r["collect"] = collect_rate(args.routes, args.routes_count)

@@ -44,3 +44,7 @@ def test_bench_prints_and_writes_every_figure_beside_its_reference(tmp_path, cap
                  "student training", "student inference"):
         assert line in printed
     assert "eval" not in r  # the whole town12_short evaluation only with --eval
+    # the machine the figures belong to, printed and written
+    m = r["machine"]
+    assert m["cpu"] and m["cores"] >= 1 and m["torch_cpu_capability"] and m["libsumo"] == "1.28.0"
+    assert f"machine: {m['cpu']}, {m['cores']} cores" in printed

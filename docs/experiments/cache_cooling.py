@@ -2,7 +2,8 @@
 
     python docs/experiments/cache_cooling.py [ROUTE_INDICES]
 
-1. The same 1 MB array (it fits the 2 MB L2 of this machine's cores) is summed right
+1. The same 1 MB array (it fits the 2 MB L2 per core of the Intel Xeon VM of session 11;
+   the AMD EPYC VM of session 12 has 1 MB per core) is summed right
    after a busy spin of 0 to 10 ms that touches almost no memory. On a machine whose
    caches belong to this process alone the time does not depend on the spin.
 2. SUMO's step (``Scene.advance``, the ``bare libsumo`` figure of ``sumo-scimm bench``)

@@ -126,13 +126,19 @@ def load_agent(name: str) -> AutonomousAgent:
         module = importlib.import_module(module_name)
     except ImportError as exc:
         raise AgentLoadError(f"agent {name!r}: cannot import {module_name!r} ({exc})") from None
+    except Exception as exc:  # noqa: BLE001 - an error in the user's module is reported, not raised
+        raise AgentLoadError(f"agent {name!r}: importing {module_name!r} failed "
+                             f"({type(exc).__name__}: {exc})") from None
     cls = getattr(module, cls_name, None)
     if cls is None or not isinstance(cls, type):
         raise AgentLoadError(f"agent {name!r}: {module_name!r} has no class {cls_name!r}")
-    agent = cls()
-    if not isinstance(agent, AutonomousAgent):
+    if not issubclass(cls, AutonomousAgent):
         raise AgentLoadError(f"agent {name!r}: {cls_name} does not subclass harness.agent.AutonomousAgent")
-    return agent
+    try:
+        return cls()
+    except Exception as exc:  # noqa: BLE001
+        raise AgentLoadError(f"agent {name!r}: {cls_name}() failed ({type(exc).__name__}: {exc}); "
+                             "an agent is built without arguments (its config goes to setup())") from None
 
 
 def split_output(out) -> tuple[Control, Prediction | None]:

@@ -13,6 +13,7 @@ import os
 import signal
 import threading
 from pathlib import Path
+from typing import Callable
 
 import numpy as np
 
@@ -45,3 +46,25 @@ def savez_atomic(path: Path, /, **arrays) -> None:
     with signals_held():
         np.savez_compressed(tmp, **arrays)
         os.replace(tmp, path)
+
+
+def write_atomic(path: Path, content: str | bytes | Callable[[Path], None]) -> None:
+    """Write ``path`` whole or not at all: ``content`` (text, bytes, or a function that
+    writes the file it is given) goes to ``path.tmp``, which is renamed over ``path`` with
+    stops held. A write that fails (a full disk, a folder in the way) removes the
+    temporary file and raises."""
+    path = Path(path)
+    tmp = path.with_name(path.name + ".tmp")
+    with signals_held():
+        try:
+            if isinstance(content, str):
+                tmp.write_text(content)
+            elif isinstance(content, bytes):
+                tmp.write_bytes(content)
+            else:
+                content(tmp)
+            os.replace(tmp, path)
+        except BaseException:
+            if tmp.is_file():
+                tmp.unlink()
+            raise

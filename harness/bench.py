@@ -81,6 +81,10 @@ def _bare_step_ms(route: Route, seed: int, log: EpisodeLog,
         world.close()
 
 
+class BenchError(RuntimeError):
+    """A route of the benchmark drove no tick: there is nothing to time."""
+
+
 def run_bench(routes_name: str = "town12_smoke", n_routes: int = 4, bev_frames: int = 2000,
               agent: str = "route_follower", agent_config: str | None = None,
               bare_inference: Callable[[list[dict]], float] | None = None,
@@ -109,6 +113,8 @@ def run_bench(routes_name: str = "town12_smoke", n_routes: int = 4, bev_frames: 
                 kept.append(f)
 
         res = run_episode(route, agent, agent_config, seed, on_frame=keep)
+        if not res.steps:  # nothing to time: the agent could not be set up, or SUMO failed at once
+            raise BenchError(f"route {route.id}: {res.status} before its first tick ({res.message.splitlines()[0]})")
         # the frame callback costs a dict write and, every SAMPLE_EVERY-th tick, a list append: negligible
         harness_ms.append(1000 * res.loop_time / max(res.steps, 1))
         a = driver.get("agent")

@@ -1,8 +1,9 @@
 """The ``sumo-scimm`` command line: one subcommand per stage of the data flow (SPEC §1).
 
 ``main(argv) -> int`` is importable and testable. Bad input (unknown town or set,
-malformed file, bad option) prints one line ``sumo-scimm: error: ...`` naming the
-problem and the fix, and returns 2; no traceback, no partial output.
+malformed file, bad option, an output path that cannot be created or written) prints one
+line ``sumo-scimm: error: ...`` naming the problem and the fix, and returns 2; no
+traceback, no partial output.
 """
 from __future__ import annotations
 
@@ -13,19 +14,18 @@ import math
 import signal
 import sys
 import threading
+import zipfile
 from pathlib import Path
 
 from harness import world_cli
 from harness.agent import DEFAULT_AGENT
+from harness.atomic import write_atomic
 from harness.episode import AGENT_TIMEOUT
+from harness.errors import BadInput  # noqa: F401 - also imported from here by users and tests
 
 EXIT_BAD_INPUT = 2
 # Modules of later stages with a ``register(subparsers)`` adding their subcommands.
 STAGE_CLIS = ("scimm.cli", "model.cli", "model.reproduce", "model.bench_cli")
-
-
-class BadInput(Exception):
-    """User error: printed as one line, exit code 2."""
 
 
 class Terminated(KeyboardInterrupt):
@@ -107,9 +107,11 @@ def _run(jobs: list, out: Path, args: argparse.Namespace, **kwargs) -> list[dict
         raise BadInput(str(exc)) from None
 
 
-def _check_agent(name: str, config: str | None) -> None:
-    """BadInput unless the agent loads and accepts its config."""
+def check_agent(name: str, config: str | None) -> None:
+    """BadInput unless the agent loads and accepts its config (``--agent-config``, a file)."""
     from harness.agent import AgentLoadError, load_agent
+    if config and not Path(config).is_file():
+        raise BadInput(f"--agent-config {config!r} does not exist")
     try:
         load_agent(name).check_config(config)
     except (AgentLoadError, ValueError, OSError) as exc:
@@ -127,9 +129,7 @@ def _eval(args: argparse.Namespace) -> int:
     _, problems = check_file(path)
     if problems:
         raise BadInput(f"{path}: {problems[0]} (run 'sumo-scimm routes check {path}')")
-    if args.agent_config and not Path(args.agent_config).is_file():
-        raise BadInput(f"--agent-config {args.agent_config!r} does not exist")
-    _check_agent(args.agent, args.agent_config)
+    check_agent(args.agent, args.agent_config)
     _, all_routes = read_routes(path)
     keep = set(_subset(args.routes_subset, [r.id for r in all_routes]))
     routes = [r for r in all_routes if r.id in keep]
@@ -174,7 +174,7 @@ def _render(args: argparse.Namespace) -> int:
         raise BadInput(f"route {args.route!r} is not in {path.name} (ids {ids[0]}..{ids[-1]})")
     if not args.out.endswith(".mp4"):
         raise BadInput(f"--out {args.out!r} must end in .mp4 (a PNG of the path is written beside it)")
-    _check_agent(args.agent, args.agent_config)
+    check_agent(args.agent, args.agent_config)
     k = ids.index(args.route)
     res, png = render_route(routes[k], args.agent, args.agent_config, route_seed(args.seed, k), Path(args.out))
     print(f"route {args.route}: {res.status}, RC {res.rc:.2f}, {res.game_time:.1f} s -> {args.out}, {png}")
@@ -195,9 +195,7 @@ def _score(args: argparse.Namespace) -> int:
         raise BadInput(f"{path}: not a Leaderboard results file ({exc})") from None
     text = json.dumps(out, indent=2) + "\n"
     if args.out:
-        tmp = Path(args.out + ".tmp")
-        tmp.write_text(text)
-        tmp.replace(args.out)
+        write_atomic(Path(args.out), text)
         g = out["_checkpoint"]["global_record"]["scores_mean"]
         print(f"{args.out}: DS {g['score_composed']}, RC {g['score_route']}, IS {g['score_penalty']}")
     else:
@@ -243,8 +241,18 @@ def _data_show(args: argparse.Namespace) -> int:
     folder = Path(args.dir)
     if not (folder / "episodes").is_dir():
         raise BadInput(f"{folder} is not a dataset folder (no episodes/; make one with 'sumo-scimm collect')")
-    index = pd.read_csv(folder / "index.csv") if (folder / "index.csv").is_file() else build_index(folder)
-    print(describe(index))
+    if not any((folder / "episodes").glob("*.npz")):
+        raise BadInput(f"{folder}/episodes holds no episode: finish the collection with 'sumo-scimm collect ... "
+                       "--resume'")
+    path = folder / "index.csv"
+    try:  # the index collect wrote, or one read from the episodes (show writes nothing)
+        index = pd.read_csv(path) if path.is_file() else build_index(folder, write=False)
+        text = describe(index)
+    except (ValueError, KeyError, OSError, pd.errors.ParserError, zipfile.BadZipFile) as exc:
+        fix = (f"{path} is damaged: delete it (data show then reads the episodes)" if path.is_file() else
+               f"an episode file in {folder}/episodes is damaged: collect the dataset again into a new folder")
+        raise BadInput(f"{fix} ({type(exc).__name__}: {exc})") from None
+    print(text)
     return 0
 
 
@@ -346,6 +354,11 @@ def main(argv: list[str] | None = None) -> int:
     except (BadInput, UnknownTown, UnknownSet, RouteFileError) as exc:
         print(f"sumo-scimm: error: {exc}", file=sys.stderr)
         return EXIT_BAD_INPUT
+    except OSError as exc:  # a path the command cannot create, read or write (a run's own failures are records)
+        where = f": {exc.filename}" if exc.filename else ""
+        print(f"sumo-scimm: error: {exc.strerror or exc}{where} (check the path: its folder must exist or "
+              "be creatable, and be writable)", file=sys.stderr)
+        return EXIT_BAD_INPUT
     except KeyboardInterrupt as exc:
         if not outer:
             raise
@@ -361,6 +374,6 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    # run through the imported module, so that later stages raise the same BadInput class
+    # run through the imported module, which reproduce and bench call too (one _depth)
     from harness.cli import main as _main
     sys.exit(_main())

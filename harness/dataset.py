@@ -17,6 +17,7 @@ import numpy as np
 import pandas as pd
 
 from controller.vehicle import EgoState
+from harness.atomic import write_atomic
 from harness.bev import BevRenderer
 from harness.plan import GlobalPlan, build_plan
 from harness.world import Snapshot
@@ -92,8 +93,9 @@ INDEX_COLUMNS = ("t", "x", "y", "v", "command", "next_command", "target_speed", 
                  "cue_changed_route", "flag_vehicle", "flag_walker", "flag_light", "flag_stop")
 
 
-def build_index(folder: Path) -> pd.DataFrame:
-    """One row per frame of every episode in ``folder/episodes``; written to index.csv."""
+def build_index(folder: Path, write: bool = True) -> pd.DataFrame:
+    """One row per frame of every episode in ``folder/episodes``; written to index.csv
+    unless ``write`` is False. A damaged episode file raises (OSError, ValueError, KeyError)."""
     rows = []
     for ep in sorted((folder / "episodes").glob("*.npz")):
         with np.load(ep, allow_pickle=False) as z:
@@ -108,9 +110,8 @@ def build_index(folder: Path) -> pd.DataFrame:
                                                                                    "frame", *INDEX_COLUMNS])
     if len(index):
         index["situation"] = index.apply(situation, axis=1)
-    tmp = folder / "index.csv.tmp"
-    index.to_csv(tmp, index=False)
-    tmp.replace(folder / "index.csv")
+    if write:
+        write_atomic(folder / "index.csv", lambda tmp: index.to_csv(tmp, index=False))
     return index
 
 

@@ -12,7 +12,6 @@ that tick is kept.
 """
 from __future__ import annotations
 
-import math
 import signal
 import threading
 import time as wallclock

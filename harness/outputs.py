@@ -12,11 +12,11 @@ from __future__ import annotations
 import csv
 import json
 import math
-import os
 from pathlib import Path
 
 import numpy as np
 
+from harness.atomic import write_atomic
 from harness.runner import RECORD_FIELDS, STABILITY
 from harness.scoring import results
 
@@ -25,25 +25,24 @@ BOOTSTRAP_SEED = 0
 COLLISION_KEYS = ("collisions_layout", "collisions_pedestrian", "collisions_vehicle")
 
 
-def _atomic_write(path: Path, text: str) -> None:
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(text)
-    os.replace(tmp, path)
-
-
 def _sorted(records: list[dict]) -> list[dict]:
     return sorted(records, key=lambda r: (r["repetition"], int(r["route_id"]) if str(r["route_id"]).isdigit()
                                           else 0, str(r["route_id"])))
 
 
+def _write_csv(path: Path, fieldnames, rows) -> None:
+    """A CSV file with these columns (other keys of the row dicts left out), written whole."""
+    def write(tmp: Path) -> None:
+        with open(tmp, "w", newline="") as f:
+            w = csv.DictWriter(f, fieldnames=fieldnames, extrasaction="ignore")
+            w.writeheader()
+            w.writerows(rows)
+    write_atomic(path, write)
+
+
 def write_records_csv(records: list[dict], path: Path) -> None:
-    tmp = path.with_name(path.name + ".tmp")
-    with open(tmp, "w", newline="") as f:
-        w = csv.DictWriter(f, fieldnames=RECORD_FIELDS, extrasaction="ignore")
-        w.writeheader()
-        for r in _sorted(records):
-            w.writerow({k: (v.splitlines()[0] if isinstance(v, str) and v else v) for k, v in r.items()})
-    os.replace(tmp, path)
+    _write_csv(path, RECORD_FIELDS, ({k: (v.splitlines()[0] if isinstance(v, str) and v else v) for k, v in r.items()}
+                                     for r in _sorted(records)))
 
 
 def collisions_per_km(records: list[dict]) -> float:
@@ -99,15 +98,10 @@ def write_outputs(records: list[dict], total: int, out: Path, checkpoint: Path, 
     write_records_csv(records, out / "records.csv")
     lb = [r["lb"] for r in _sorted(records)]
     result = results(lb, total, sensors, finished)
-    _atomic_write(checkpoint, json.dumps(result, indent=2) + "\n")
+    write_atomic(checkpoint, json.dumps(result, indent=2) + "\n")
     if summary and records:
-        tmp = out / "summary.csv.tmp"
-        with open(tmp, "w", newline="") as f:
-            w = csv.DictWriter(f, fieldnames=["metric", "value", "ci95_low", "ci95_high", "routes"])
-            w.writeheader()
-            for row in summary_rows(records, result):
-                w.writerow(row)
-        os.replace(tmp, out / "summary.csv")
+        _write_csv(out / "summary.csv", ["metric", "value", "ci95_low", "ci95_high", "routes"],
+                   summary_rows(records, result))
     return result
 
 

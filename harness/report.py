@@ -28,19 +28,38 @@ def load_run(folder: Path) -> dict[str, float]:
     if not res.is_file() or not rec.is_file():
         raise ReportError(f"{folder} is not a run folder (needs results.json and records.csv from 'sumo-scimm eval')")
     try:
-        g = json.loads(res.read_text())["_checkpoint"]["global_record"]["scores_mean"]
-    except (json.JSONDecodeError, KeyError, TypeError) as exc:
-        raise ReportError(f"{res}: not a Leaderboard results file ({exc})") from None
-    with open(rec, newline="") as f:
-        rows = list(csv.DictReader(f))
-    km = sum(float(r["km_driven"]) for r in rows)
-    coll = sum(int(r[k]) for r in rows for k in ("collisions_layout", "collisions_pedestrian", "collisions_vehicle"))
-    out = {"DS": g["score_composed"], "RC": g["score_route"], "IS": g["score_penalty"],
-           "Collision/km": coll / km if km > 0 else math.nan}
+        data = json.loads(res.read_text())
+        g = data["_checkpoint"]["global_record"]["scores_mean"]
+        out = {"DS": float(g["score_composed"]), "RC": float(g["score_route"]), "IS": float(g["score_penalty"])}
+    except (json.JSONDecodeError, UnicodeDecodeError, KeyError, TypeError, ValueError) as exc:
+        raise ReportError(f"{res}: not a Leaderboard results file ({type(exc).__name__}: {exc})") from None
+    if data.get("entry_status") != "Finished":  # DS counts routes not run as 0; the records hold only those run
+        done, total = data["_checkpoint"].get("progress", ["?", "?"])[:2]
+        raise ReportError(f"{folder}: the run is not finished ({done} of {total} route runs): finish it with "
+                          "'sumo-scimm eval ... --resume', or leave it out")
+    rows = _records(rec)
+    km = sum(r["km_driven"] for r in rows)
+    coll = sum(r[k] for r in rows for k in COLLISIONS)
+    out["Collision/km"] = coll / km if km > 0 else math.nan
     for key, _ in TABLE4:
-        vals = np.array([float(r[key]) for r in rows], dtype=float)
+        vals = np.array([r[key] for r in rows], dtype=float)
         out[key] = float(np.nanmean(vals)) if np.isfinite(vals).any() else math.nan
     return out
+
+
+COLLISIONS = ("collisions_layout", "collisions_pedestrian", "collisions_vehicle")
+
+
+def _records(path: Path) -> list[dict]:
+    """The rows of a run's records.csv with the table's columns as numbers; ReportError if
+    a column is missing or a value is not a number."""
+    numeric = ("ds", "rc", "is", "km_driven", *COLLISIONS, *(k for k, _ in TABLE4))
+    try:
+        with open(path, newline="") as f:
+            rows = list(csv.DictReader(f))
+        return [{**r, **{k: float(r[k]) for k in numeric}} for r in rows]
+    except (KeyError, TypeError, ValueError, UnicodeDecodeError, csv.Error) as exc:
+        raise ReportError(f"{path}: not a records.csv of 'sumo-scimm eval' ({type(exc).__name__}: {exc})") from None
 
 
 def fig(x: float) -> str:
@@ -103,12 +122,8 @@ def write_report(folders: list[Path], out: Path) -> str:
 def _route_rows(folder: Path) -> dict[str, dict[str, float]]:
     """records.csv of a run as {route key: figures}, for the seed-and-route bootstrap."""
     load_run(folder)  # checks the folder
-    with open(folder / "records.csv", newline="") as f:
-        rows = list(csv.DictReader(f))
-    keys = ("collisions_layout", "collisions_pedestrian", "collisions_vehicle")
-    return {r["key"]: {"DS": float(r["ds"]), "RC": float(r["rc"]), "IS": float(r["is"]),
-                       "coll": float(sum(int(r[k]) for k in keys)), "km": float(r["km_driven"]),
-                       **{k: float(r[k]) for k, _ in TABLE4}} for r in rows}
+    return {r["key"]: {"DS": r["ds"], "RC": r["rc"], "IS": r["is"], "coll": sum(r[k] for k in COLLISIONS),
+                       "km": r["km_driven"], **{k: r[k] for k, _ in TABLE4}} for r in _records(folder / "records.csv")}
 
 
 def _figures(rows: list[dict[str, float]]) -> dict[str, float]:

@@ -167,6 +167,9 @@ def rescore_results(data: dict, rules: str = "lb2.0") -> dict:
         raise ScoreError(f"not a Leaderboard results file (missing {exc})") from None
     if not isinstance(records, list):
         raise ScoreError("not a Leaderboard results file (_checkpoint.records is not a list)")
+    if len(records) > total:  # the Leaderboard's validation marks such a file Invalid
+        raise ScoreError(f"{len(records)} records for {total} planned route runs (progress [done, {total}]): "
+                         "records of another run were merged in")
     new = [rescore(r, rules) for r in records]
     out = results(new, total, data.get("sensors", []), data.get("entry_status") == "Finished")
     out["entry_status"] = data.get("entry_status", out["entry_status"])

@@ -1,5 +1,5 @@
 """``sumo-scimm nets ...`` and ``sumo-scimm routes ...``: the towns and the route sets
-(SPEC §2), registered by ``harness.cli``. Bad input raises ``harness.cli.BadInput``."""
+(SPEC §2), registered by ``harness.cli``. Bad input raises ``harness.errors.BadInput``."""
 from __future__ import annotations
 
 import argparse
@@ -8,11 +8,12 @@ from pathlib import Path
 
 from tqdm import tqdm
 
+from harness.errors import BadInput
+
 
 # --- nets -------------------------------------------------------------------------------
 def _nets_build(args: argparse.Namespace) -> int:
     import sumo_nets
-    from harness.cli import BadInput  # harness.cli imports this module: import at call time
     towns = [sumo_nets.check_town(args.town)] if args.town else list(sumo_nets.TOWNS)
     if args.seed is not None and len(towns) != 1:
         raise BadInput("--seed needs --town (each town has its own default seed)")
@@ -37,7 +38,6 @@ def _routes_make(args: argparse.Namespace) -> int:
     from scenarios import SETS, set_path
     from scenarios.make import make_set
     from scenarios.routefile import write_routes
-    from harness.cli import BadInput
     if args.set not in SETS:
         raise BadInput(f"unknown set {args.set!r} (buildable: {', '.join(SETS)})")
     spec = SETS[args.set]

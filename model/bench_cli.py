@@ -28,6 +28,8 @@ import tempfile
 import time
 from pathlib import Path
 
+from harness.atomic import write_atomic
+
 EVAL_TARGET_S, OVERHEAD_TARGET, RSS_TARGET_MB = 180.0, 2.0, 800.0
 
 
@@ -103,24 +105,26 @@ def _bare_inference(agent_name: str, agent_config: str | None):
 
 
 def _bench(args: argparse.Namespace) -> int:
-    from harness.agent import AgentLoadError, load_agent
-    from harness.bench import collect_rate, format_bench, run_bench
-    from harness.cli import BadInput
+    from harness.bench import BenchError, collect_rate, format_bench, run_bench
+    from harness.cli import check_agent
+    from harness.errors import BadInput
     from model.bench import format_student_bench, run_student_bench
     from scimm.bench import format_imm_bench, run_imm_bench
     if args.routes_count < 1 or args.workers < 1:
         raise BadInput("--routes-count and --workers must be >= 1")
-    try:
-        load_agent(args.agent)
-    except AgentLoadError as exc:
-        raise BadInput(str(exc)) from None
+    check_agent(args.agent, args.agent_config)
+    if args.json and not Path(args.json).resolve().parent.is_dir():
+        raise BadInput(f"--json {args.json!r}: no folder {Path(args.json).parent} to write it in")
     m = machine()
     print(f"machine: {m['cpu']}, {m['cores']} cores; torch {m['torch']} ({m['torch_cpu_capability']} kernels), "
           f"libsumo {m['libsumo']}, numpy {m['numpy']}, Python {m['python']}")
     infer_ms, network_between = _bare_inference(args.agent, args.agent_config)
-    r: dict = {"machine": m, "closed_loop": run_bench(args.routes, args.routes_count, agent=args.agent,
-                                       agent_config=args.agent_config, bare_inference=infer_ms,
-                                       network_between=network_between)}
+    try:
+        loop = run_bench(args.routes, args.routes_count, agent=args.agent, agent_config=args.agent_config,
+                         bare_inference=infer_ms, network_between=network_between)
+    except BenchError as exc:  # the agent's setup failed: its config is the user's input
+        raise BadInput(f"bench: {exc}") from None
+    r: dict = {"machine": m, "closed_loop": loop}
     r["collect"] = collect_rate(args.routes, args.routes_count)
     r["teacher"] = run_imm_bench()
     r["student"] = run_student_bench()
@@ -149,9 +153,7 @@ def _bench(args: argparse.Namespace) -> int:
             print(f"worker memory          peak {rss['peak_mb']:.0f} MB, growth {rss['growth_mb']:+.1f} MB over "
                   f"{rss['max_routes_per_worker']} routes (target <= {RSS_TARGET_MB:g} MB, flat)")
     if args.json:
-        tmp = Path(args.json + ".tmp")
-        tmp.write_text(json.dumps(r, indent=2) + "\n")
-        tmp.replace(args.json)
+        write_atomic(Path(args.json), json.dumps(r, indent=2) + "\n")
     return 0
 
 

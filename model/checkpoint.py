@@ -19,7 +19,7 @@ from pathlib import Path
 
 import torch
 
-from harness.cli import BadInput
+from harness.errors import BadInput
 from model.network import NetConfig, Student
 
 FORMAT = "sumo-scimm-student/1"

@@ -34,7 +34,7 @@ import numpy as np
 import torch
 
 from harness.bev import EGO_ROW, RES, ROUTE
-from harness.cli import BadInput
+from harness.errors import BadInput
 from model import cache as bevcache
 
 TEACHER_METHODS = ("fixed", "scimm")

@@ -20,6 +20,8 @@ from pathlib import Path
 
 import pandas as pd
 
+from harness.atomic import write_atomic
+
 # (arm, teacher of `sumo-scimm train`): the paper's three students; the first is the baseline
 ARMS = (("baseline", "none"), ("fixed", "fixed"), ("scimm", "scimm"))
 EVAL_SET = "town12_short"
@@ -33,7 +35,8 @@ class Stages:
         self.times: dict[str, float] = json.loads(self.file.read_text()) if self.file.is_file() else {}
 
     def run(self, name: str, argv: list[str]) -> None:
-        from harness.cli import BadInput, main
+        from harness.cli import main
+        from harness.errors import BadInput
         print(f"== {name}: sumo-scimm {' '.join(argv)}", flush=True)
         t0 = time.perf_counter()
         if main(argv) != 0:
@@ -41,9 +44,7 @@ class Stages:
                            "fix it and run reproduce again: finished stages are kept")
         # a stage that found its outputs keeps the time it took when it ran
         self.times[name] = max(self.times.get(name, 0.0), round(time.perf_counter() - t0, 1))
-        tmp = self.file.with_suffix(".tmp")
-        tmp.write_text(json.dumps(self.times, indent=1) + "\n")
-        tmp.replace(self.file)
+        write_atomic(self.file, json.dumps(self.times, indent=1) + "\n")
 
 
 def reproduce(out: Path, seeds: int, workers: int, repetitions: int, epochs: int | None,
@@ -127,7 +128,8 @@ def _markdown(df: pd.DataFrame) -> str:
 
 
 def _reproduce(args: argparse.Namespace) -> int:
-    from harness.cli import BadInput, check_backend
+    from harness.cli import check_backend
+    from harness.errors import BadInput
     from scenarios import UnknownSet, resolve_set
     for name in ("seeds", "workers", "repetitions"):
         if getattr(args, name) < 1:

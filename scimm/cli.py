@@ -14,13 +14,14 @@ from pathlib import Path
 
 from tqdm import tqdm
 
+from harness.atomic import write_atomic
+from harness.errors import BadInput
 from scimm import teacher as tch
 
 METHOD_CHOICES = (*tch.METHODS, "all")
 
 
 def _dataset(data: str | None) -> tuple[Path, list[Path]]:
-    from harness.cli import BadInput
     if not data:
         raise BadInput("--data DIR is required (a dataset folder made by 'sumo-scimm collect')")
     folder = Path(data)
@@ -31,9 +32,7 @@ def _dataset(data: str | None) -> tuple[Path, list[Path]]:
 
 
 def _write_csv(table, path: Path) -> None:
-    tmp = path.with_name(path.name + ".tmp")
-    table.to_csv(tmp, index=False)
-    tmp.replace(path)
+    write_atomic(path, lambda tmp: table.to_csv(tmp, index=False))
 
 
 def _teacher(args: argparse.Namespace) -> int:
@@ -61,7 +60,6 @@ def _teacher(args: argparse.Namespace) -> int:
 
 
 def _plot(args: argparse.Namespace) -> int:
-    from harness.cli import BadInput
     from scimm.plot import plot_posterior
     folder, files = _dataset(args.data)
     match = [f for f in files if f.stem == args.episode]

@@ -23,12 +23,12 @@ from __future__ import annotations
 import datetime
 import hashlib
 import json
-import os
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
 import numpy as np
 
+from harness.atomic import write_atomic
 from scimm import pathspeed
 from scimm.cues import cue_vector
 from scimm.imm import imm_filter
@@ -102,12 +102,6 @@ def teach(files: Sequence[Path], method: str, cfg: IMMConfig,
     return out
 
 
-def _atomic_write(path: Path, write: Callable[[Path], None]) -> None:
-    tmp = path.with_name(path.name + ".tmp")
-    write(tmp)
-    os.replace(tmp, path)
-
-
 def write_teacher(data: Path, method: str, labels: dict[str, dict[str, np.ndarray]], cfg: IMMConfig,
                   files: Sequence[Path]) -> Path:
     """Write ``DIR/teacher/<method>/`` (one npz per episode, then manifest.json last)."""
@@ -120,12 +114,12 @@ def write_teacher(data: Path, method: str, labels: dict[str, dict[str, np.ndarra
         def write(tmp: Path, arrays=arrays) -> None:
             with open(tmp, "wb") as fh:
                 np.savez(fh, **arrays)
-        _atomic_write(folder / f"{stem}.npz", write)
+        write_atomic(folder / f"{stem}.npz", write)
     meta = {"method": method, "modes": ["Cruise", "Turn", "Deceleration", "Avoidance", "Recovery"],
             "episodes": len(files), "dataset_hash": dataset_hash(files),
             "created": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
             "parameters": cfg.as_dict()}
-    _atomic_write(manifest, lambda tmp: tmp.write_text(json.dumps(meta, indent=1)))
+    write_atomic(manifest, json.dumps(meta, indent=1))
     return folder
 
 

@@ -95,3 +95,14 @@ class BevExpert(Expert):
     def run_step(self, input_data, timestamp):
         BevExpert.seen[(round(timestamp * 1000), *input_data["pose"])] = input_data["bev"].copy()
         return super().run_step(input_data, timestamp)
+
+
+class NeedsArguments(AutonomousAgent):
+    """Cannot be built as the harness builds an agent (without arguments)."""
+
+    def __init__(self, config):
+        super().__init__()
+        self.config = config
+
+    def run_step(self, input_data, timestamp):
+        return Control(brake=1.0)

@@ -5,7 +5,6 @@ from __future__ import annotations
 import contextlib
 import io
 
-import pytest
 from hypothesis import given, settings, strategies as st
 
 from harness.cli import main

@@ -2,7 +2,6 @@
 the episode runs, then detection reads its log, as in `sumo-scimm eval`."""
 from __future__ import annotations
 
-import math
 
 import libsumo
 import numpy as np

@@ -1,0 +1,151 @@
+"""Bad input the option fuzz of test_reliability.py does not reach: a resumed folder that
+holds another run, output paths that cannot be written, an agent that cannot be built, a
+results file with more records than planned routes, damaged run and dataset folders. Each
+gives one line, exit code 2, no traceback, and leaves what was there as it was."""
+from __future__ import annotations
+
+import contextlib
+import io
+import json
+import shutil
+from pathlib import Path
+
+import pytest
+
+from harness.cli import main
+
+SMOKE_ROUTE = ["eval", "--routes", "town12_smoke", "--routes-subset", "0", "--agent", "route_follower",
+               "--workers", "1"]
+
+
+def _cli(argv: list[str]) -> tuple[int, str]:
+    buf = io.StringIO()
+    with contextlib.redirect_stdout(buf), contextlib.redirect_stderr(buf):
+        code = main(argv)
+    return code, buf.getvalue()
+
+
+def _one_line_exit_2(code: int, printed: str, *words: str) -> None:
+    lines = [ln for ln in printed.splitlines() if ln.strip()]
+    assert code == 2 and len(lines) == 1 and lines[0].startswith("sumo-scimm: error: "), printed
+    assert "Traceback" not in printed
+    for w in words:
+        assert w in lines[0], (w, lines[0])
+
+
+def _tree(folder: Path) -> dict[str, bytes]:
+    return {str(p.relative_to(folder)): p.read_bytes() for p in sorted(folder.rglob("*")) if p.is_file()}
+
+
+@pytest.fixture(scope="module")
+def one_route_run(tmp_path_factory) -> Path:
+    out = tmp_path_factory.mktemp("run") / "run"
+    code, printed = _cli([*SMOKE_ROUTE, "--out", str(out)])
+    assert code == 0, printed
+    return out
+
+
+@pytest.mark.parametrize("change, words", [
+    (["--agent", "expert"], ["agent 'expert'", "'route_follower'"]),
+    (["--seed", "3"], ["seed"]),
+    (["--routes-subset", "1"], ["route runs differ"]),
+    (["--rules", "b2d"], ["rules 'b2d'"]),
+])
+def test_resume_refuses_a_folder_that_holds_another_run(one_route_run, tmp_path, change, words):
+    """Before, the records of both runs were mixed: DS 558 on a 100-route folder resumed
+    with 10 routes of another agent."""
+    out = tmp_path / "run"
+    shutil.copytree(one_route_run, out)
+    before = _tree(out)
+    argv = list(SMOKE_ROUTE)
+    for opt, value in zip(change[::2], change[1::2]):
+        if opt in argv:
+            argv[argv.index(opt) + 1] = value
+        else:
+            argv += [opt, value]
+    code, printed = _cli([*argv, "--out", str(out), "--resume"])
+    _one_line_exit_2(code, printed, *words, "resume with the options the run was started with")
+    assert _tree(out) == before
+
+
+def test_resume_of_a_folder_from_before_run_json_checks_its_records(one_route_run, tmp_path):
+    out = tmp_path / "run"
+    shutil.copytree(one_route_run, out)
+    (out / "run.json").unlink()
+    code, printed = _cli([*SMOKE_ROUTE, "--seed", "3", "--out", str(out), "--resume"])
+    _one_line_exit_2(code, printed, "record 0_rep0 has seed")
+    # the same options: nothing left to run, the scores are printed again and run.json written
+    code, printed = _cli([*SMOKE_ROUTE, "--out", str(out), "--resume"])
+    assert code == 0 and "1 routes ->" in printed, printed
+    assert json.loads((out / "run.json").read_text()) == json.loads((one_route_run / "run.json").read_text())
+
+
+def test_score_refuses_more_records_than_planned_routes(one_route_run, tmp_path):
+    data = json.loads((one_route_run / "results.json").read_text())
+    cp = data["_checkpoint"]
+    cp["records"] = cp["records"] * 2  # two records, progress [1, 1]
+    path = tmp_path / "merged.json"
+    path.write_text(json.dumps(data))
+    code, printed = _cli(["score", str(path)])
+    _one_line_exit_2(code, printed, "2 records for 1 planned route runs")
+
+
+def test_unwritable_outputs_are_one_line_and_leave_nothing(one_route_run, tmp_path):
+    blocker = tmp_path / "a_file"
+    blocker.write_text("x")
+    code, printed = _cli([*SMOKE_ROUTE, "--out", str(blocker / "run")])
+    _one_line_exit_2(code, printed, str(blocker))
+    folder = tmp_path / "a_folder"
+    folder.mkdir()
+    code, printed = _cli(["score", str(one_route_run / "results.json"), "--out", str(folder)])
+    _one_line_exit_2(code, printed, str(folder))
+    code, printed = _cli(["report", str(one_route_run), "--out", str(blocker / "report")])
+    _one_line_exit_2(code, printed, str(blocker))
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a_file", "a_folder"]
+    assert blocker.read_text() == "x" and not list(folder.iterdir())
+
+
+def test_an_agent_that_cannot_be_built_is_bad_input(tmp_path):
+    out = tmp_path / "run"
+    code, printed = _cli(["eval", "--routes", "town12_smoke", "--agent", "tests.agents:NeedsArguments",
+                          "--out", str(out)])
+    _one_line_exit_2(code, printed, "NeedsArguments() failed", "without arguments")
+    code, printed = _cli(["eval", "--routes", "town12_smoke", "--agent", "datetime:datetime", "--out", str(out)])
+    _one_line_exit_2(code, printed, "does not subclass")
+    assert not out.exists()
+
+
+def test_bench_checks_its_agent_config_and_json_folder_before_running(tmp_path):
+    code, printed = _cli(["bench", "--agent", "scimm", "--agent-config", str(tmp_path / "nope.pt")])
+    _one_line_exit_2(code, printed, "does not exist")
+    code, printed = _cli(["bench", "--json", str(tmp_path / "no" / "bench.json")])
+    _one_line_exit_2(code, printed, "--json")
+    assert not list(tmp_path.iterdir())
+
+
+def test_report_refuses_an_unfinished_run_and_a_damaged_records_csv(one_route_run, tmp_path):
+    run = tmp_path / "run"
+    shutil.copytree(one_route_run, run)
+    res = json.loads((run / "results.json").read_text())
+    (run / "results.json").write_text(json.dumps({**res, "entry_status": "Started"}))
+    code, printed = _cli(["report", str(run), "--out", str(tmp_path / "report")])
+    _one_line_exit_2(code, printed, "not finished")
+    (run / "results.json").write_text(json.dumps(res))
+    (run / "records.csv").write_text("key,ds\n0_rep0,12\n")
+    code, printed = _cli(["report", str(run), "--out", str(tmp_path / "report")])
+    _one_line_exit_2(code, printed, "records.csv", "KeyError")
+    assert not (tmp_path / "report").exists()
+
+
+def test_data_show_on_damaged_or_empty_datasets(tmp_path):
+    episodes = tmp_path / "data" / "episodes"
+    episodes.mkdir(parents=True)
+    code, printed = _cli(["data", "show", str(tmp_path / "data")])
+    _one_line_exit_2(code, printed, "holds no episode")
+    (episodes / "0_rep0.npz").write_bytes(b"not a zip file")
+    code, printed = _cli(["data", "show", str(tmp_path / "data")])
+    _one_line_exit_2(code, printed, "episode file", "damaged")
+    (tmp_path / "data" / "index.csv").write_text('a,b\n"1,2\n3,4,5,6\n')
+    code, printed = _cli(["data", "show", str(tmp_path / "data")])
+    _one_line_exit_2(code, printed, "index.csv is damaged")
+    assert sorted(p.name for p in (tmp_path / "data").iterdir()) == ["episodes", "index.csv"]

@@ -2,8 +2,9 @@
 
     sumo-scimm teacher --data DIR [--method fixed|scimm|all]
         writes DIR/teacher/<method>/ (scimm.teacher), then, when both the fixed and the
-        scimm folders are complete, prints paper Table 2 (also DIR/teacher/table2.csv) and
-        the mode-meaning check (also DIR/teacher/mode_meaning.csv).
+        scimm folders are complete, prints paper Table 2 (also DIR/teacher/table2.csv),
+        the mode-meaning check (also DIR/teacher/mode_meaning.csv) and the fit residual of
+        the observation per mode (also DIR/teacher/fit_residuals.csv; SPEC §6.1).
     sumo-scimm teacher plot --data DIR --episode E --out FILE.png
         paper Fig. 4 for episode E (its file stem, e.g. 12_rep0).
 """
@@ -37,7 +38,7 @@ def _write_csv(table, path: Path) -> None:
 
 def _teacher(args: argparse.Namespace) -> int:
     from scimm.modes import IMMConfig
-    from scimm.table2 import evaluate, format_meaning, format_table2
+    from scimm.table2 import evaluate, evaluate_residuals, format_meaning, format_residuals, format_table2
     folder, files = _dataset(args.data)
     cfg = IMMConfig()
     methods = tch.METHODS if args.method == "all" else (args.method,)
@@ -56,6 +57,11 @@ def _teacher(args: argparse.Namespace) -> int:
     print(format_table2(table))
     print("\nMode meaning: frames of each situation whose dominant mode means it")
     print(format_meaning(meaning))
+    residuals = evaluate_residuals(folder, files)
+    _write_csv(residuals, folder / "teacher" / "fit_residuals.csv")
+    print("\nFit residual of the observation z (paper eq. 2-3) against the expert's labels, per dominant "
+          f"SC-IMM mode -> {folder / 'teacher' / 'fit_residuals.csv'}")
+    print(format_residuals(residuals))
     return 0
 
 

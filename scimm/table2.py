@@ -35,7 +35,7 @@ DISPLAY = {"speed_delta": "Speed delta [m/s]", "speed_jerk": "Speed jerk [m/s^3]
            "heading_delta": "Heading delta [rad]", "lat_jerk": "Lat jerk [m/s^3]"}
 GROUPS = ("Cruise", "Turn", "Deceleration", "Avoidance/Recovery")
 ROWS = ("raw", "fixed", "scimm")
-ROW_NAMES = {"raw": "Original Raw Expert", "fixed": "Fixed-IMM", "scimm": "SC-IMM", "scimm-smooth": "SC-IMM smoothed"}
+ROW_NAMES = {"raw": "Original Raw Expert", "fixed": "Fixed-IMM", "scimm": "SC-IMM"}
 # situation of harness.dataset -> the modes that mean it (the mode-meaning check)
 MEANING = {"junction_turn": (TURN,), "stopping": (DECEL,), "bypass": (AVOID, RECOVER)}
 
@@ -92,6 +92,56 @@ def format_table2(table: pd.DataFrame) -> str:
         lines.append(f"{r['mode']:19} {r['method']:20} {r['frames']:7d} "
                      + " ".join(f"{r[m]:19.4g}" for m in METRICS))
     return "\n".join(lines)
+
+
+RESIDUALS = ("path_mean", "path_p95", "path_max", "speed_mean", "speed_p95")
+
+
+def fit_residuals(episodes: Sequence[dict[str, np.ndarray]]) -> pd.DataFrame:
+    """How well the observation z (paper eq. 2-3, scimm.pathspeed) represents each frame's
+    expert labels, per group of the dominant SC-IMM mode (SPEC §6.1: the residual per mode).
+
+    episodes: each {"path" (T, 20, 2), "speed_wps" (T, 10, 2), "mu" (T, 5) SC-IMM posteriors}.
+    Per frame, ``pathspeed.residuals``: the largest distance between a label path point and
+    the path of z [m], and the RMS difference of the 10 label speeds and the speeds of z
+    [m/s]. Returns one line per group: mode, frames, mean / 95th percentile / max of the path
+    residual, mean / 95th percentile of the speed residual (NaN for a group with no frame)."""
+    dp, dv, g = [], [], []
+    for ep in episodes:
+        z = pathspeed.observe(ep["path"], ep["speed_wps"])
+        p, v = pathspeed.residuals(ep["path"], ep["speed_wps"], z)
+        dp.append(p)
+        dv.append(v)
+        g.append(group_of(ep["mu"]))
+    dp, dv, g = (np.concatenate(a) if a else np.zeros(0) for a in (dp, dv, g))
+    lines = []
+    for gi, gname in enumerate(GROUPS):
+        p, v = dp[g == gi], dv[g == gi]
+        stats = ((np.mean(p), np.percentile(p, 95), np.max(p), np.mean(v), np.percentile(v, 95))
+                 if len(p) else (np.nan,) * len(RESIDUALS))
+        lines.append({"mode": gname, "frames": len(p), **dict(zip(RESIDUALS, map(float, stats)))})
+    return pd.DataFrame(lines, columns=["mode", "frames", *RESIDUALS])
+
+
+def format_residuals(table: pd.DataFrame) -> str:
+    """The fit residuals per group as aligned text."""
+    lines = [f"{'Mode':19} {'frames':>7} {'path mean [m]':>14} {'p95':>8} {'max':>8} "
+             f"{'speed mean [m/s]':>17} {'p95':>8}"]
+    for _, r in table.iterrows():
+        lines.append(f"{r['mode']:19} {r['frames']:7d} {r['path_mean']:14.4f} {r['path_p95']:8.4f} "
+                     f"{r['path_max']:8.4f} {r['speed_mean']:17.4f} {r['speed_p95']:8.4f}")
+    return "\n".join(lines)
+
+
+def evaluate_residuals(data: Path, files: Sequence[Path]) -> pd.DataFrame:
+    """:func:`fit_residuals` of the episode files, grouped by their written SC-IMM teacher."""
+    from scimm.teacher import load_teacher
+    episodes = []
+    for f in files:
+        with np.load(f, allow_pickle=False) as a:
+            episodes.append({"path": a["path"], "speed_wps": a["speed_wps"],
+                             "mu": load_teacher(data, "scimm", f.stem)["mu"]})
+    return fit_residuals(episodes)
 
 
 def mode_meaning(situations: Sequence[np.ndarray], mus: dict[str, Sequence[np.ndarray]]) -> pd.DataFrame:

@@ -16,7 +16,7 @@ from scimm.cues import CUES, cue_vector
 from scimm.imm import imm_filter
 from scimm.modes import AVOID, DECEL, MODES, RECOVER, TURN, IMMConfig, scene_adjustment
 from scimm.scene import conditioned
-from scimm.table2 import frame_metrics, mode_meaning, table2
+from scimm.table2 import GROUPS, fit_residuals, frame_metrics, mode_meaning, table2
 from scimm.teacher import run_imm
 
 CUE_ARRAYS = ("command", "next_command", "cue_junction", "cue_curvature", "cue_curvature_change",
@@ -219,6 +219,9 @@ def test_teacher_cli_writes_the_contract_files(dataset, capsys):
         assert not list(folder.glob("*.tmp"))
     table = pd.read_csv(dataset / "teacher" / "table2.csv")
     assert len(table) == 4 * 3 and set(table["method"]) == {"Original Raw Expert", "Fixed-IMM", "SC-IMM"}
+    res = pd.read_csv(dataset / "teacher" / "fit_residuals.csv")
+    assert "Fit residual" in out and list(res["mode"]) == list(GROUPS)
+    assert res["frames"].sum() == 23 + 41 + 7 == table[table["method"] == "SC-IMM"]["frames"].sum()
 
 
 def test_teacher_is_deterministic(dataset):
@@ -248,3 +251,32 @@ def test_teacher_cli_bad_input_is_one_line_and_exit_2(argv, message, dataset, ca
     assert main(argv) == 2
     err = capsys.readouterr().err
     assert err.startswith("sumo-scimm: error: ") and message in err and err.count("\n") == 1
+
+
+def test_fit_residuals_are_zero_for_representable_labels_and_grouped_by_dominant_mode():
+    """SPEC §6.1's residual per mode. Cruise frames: labels made from states (an arc with a
+    curvature rate; a linear speed profile), which z represents exactly. Turn frames: a
+    path with a 90 deg kink (no quadratic heading follows a step) and a speed step, whose
+    RMS residual is checked against numpy's own least-squares line (np.polyfit)."""
+    x = np.array([[0.02, 0.05, -0.001, 6.0, -1.0], [0.0, -0.03, 0.0005, 3.0, 0.5], [0.1, 0.0, 0.0, 8.0, 0.0]])
+    tau = ps.SPEED_TAU
+    along = x[:, 3:4] * tau + 0.5 * x[:, 4:5] * tau ** 2  # distance driven by tau [m]: speeds stay > 0
+    cruise = {"path": ps.state_path(x), "speed_wps": np.stack([along, np.zeros_like(along)], axis=-1),
+              "mu": np.tile([0.9, 0.1, 0.0, 0.0, 0.0], (3, 1))}
+    kink = np.concatenate([np.stack([np.arange(10.0), np.zeros(10)], -1),
+                           np.stack([np.full(10, 9.0), np.arange(1.0, 11.0)], -1)])  # 90 deg left at 9 m
+    v = np.array([4.0, 4, 4, 4, 4, 6, 6, 6, 6, 6])
+    wps = np.stack([np.cumsum(v * ps.SPEED_DT), np.zeros(10)], axis=-1)
+    turn = {"path": np.stack([kink, kink]), "speed_wps": np.stack([wps, wps]),
+            "mu": np.array([[0.1, 0.6, 0.1, 0.1, 0.1], [0.0, 0.5, 0.0, 0.4, 0.1]])}
+    table = fit_residuals([cruise, turn]).set_index("mode")
+    assert list(table.index) == list(GROUPS)
+    assert table.loc["Cruise", "frames"] == 3 and table.loc["Turn", "frames"] == 2
+    assert table.loc["Cruise", "path_max"] < 1e-9 and table.loc["Cruise", "speed_p95"] < 1e-9  # exact round trip
+    slope, icpt = np.polyfit(ps.SPEED_MID, v, 1)
+    rms = np.sqrt(np.mean((icpt + slope * ps.SPEED_MID - v) ** 2))
+    np.testing.assert_allclose(table.loc["Turn", ["speed_mean", "speed_p95"]].to_numpy(float), rms, rtol=1e-9)
+    # the kink's heading jumps by pi/2 between chords 8 and 9; the best quadratic misses
+    # the corner by metres (1.90 m here; > 1 m leaves room for any least-squares solver)
+    assert table.loc["Turn", "path_mean"] > 1.0 and table.loc["Turn", "path_mean"] == table.loc["Turn", "path_max"]
+    assert table.loc["Deceleration", "frames"] == 0 and np.isnan(table.loc["Deceleration", "path_mean"])

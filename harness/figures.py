@@ -8,6 +8,8 @@ from pathlib import Path
 
 import numpy as np
 
+from harness.atomic import write_atomic
+
 
 def _world(points: np.ndarray, x: float, y: float, yaw: float) -> np.ndarray:
     """Ego-frame points (x forward, y left) [m] -> world frame."""
@@ -51,8 +53,6 @@ def waypoint_overlay(runs: dict[str, Path], route_key: str, out: Path, radius: f
     fig.suptitle(f"Consecutive predicted paths, route {route_key} (colour: time)")
     fig.tight_layout()
     out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = out.with_suffix(".tmp.png")
-    fig.savefig(tmp, dpi=110)
+    write_atomic(out, lambda tmp: fig.savefig(tmp, dpi=110, format="png"))
     plt.close(fig)
-    tmp.replace(out)
     return out

@@ -28,7 +28,7 @@ import socket
 import tempfile
 from pathlib import Path
 
-from harness.atomic import signals_held
+from harness.atomic import write_atomic
 from harness.runner import Job, crash_record, run_job_safely, worker_stats
 
 OUTPUT_KINDS = ("logs", "episodes")  # folders of a task's files: Job.log_dir, Job.collect_dir
@@ -90,10 +90,7 @@ def _write_files(job: Job, files: dict[str, bytes]) -> None:
         kind, base = name.split("/", 1)
         path = Path(folders[kind]) / base
         path.parent.mkdir(parents=True, exist_ok=True)
-        tmp = path.with_name(path.name + ".tmp")
-        with signals_held():  # a Ctrl-C or SIGTERM lands after the rename
-            tmp.write_bytes(data)
-            os.replace(tmp, path)
+        write_atomic(path, data)  # a Ctrl-C or SIGTERM lands after the rename
 
 
 class RayPool:

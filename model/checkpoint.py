@@ -19,6 +19,7 @@ from pathlib import Path
 
 import torch
 
+from harness.atomic import write_atomic
 from harness.errors import BadInput
 from model.network import NetConfig, Student
 
@@ -45,12 +46,8 @@ def save_checkpoint(path: Path, model: Student, manifest: dict) -> Path:
     path.parent.mkdir(parents=True, exist_ok=True)
     blob = {"format": FORMAT, "state_dict": {k: v.detach().clone() for k, v in model.state_dict().items()},
             "config": model.cfg.to_dict(), "manifest": manifest}
-    tmp = path.with_name(path.name + ".tmp")
-    torch.save(blob, tmp)
-    tmp.replace(path)
-    mtmp = path.with_name("manifest.json.tmp")
-    mtmp.write_text(json.dumps(manifest, indent=2, sort_keys=True))
-    mtmp.replace(path.with_name("manifest.json"))
+    write_atomic(path, lambda tmp: torch.save(blob, tmp))
+    write_atomic(path.with_name("manifest.json"), json.dumps(manifest, indent=2, sort_keys=True))
     return path
 
 

@@ -11,6 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
+from harness.atomic import write_atomic
 from scimm.modes import MODES, IMMConfig
 from scimm.teacher import teach
 
@@ -54,8 +55,6 @@ def plot_posterior(episode_file: Path, out: Path, method: str = "scimm", cfg: IM
     fig.suptitle(f"{'SC-IMM' if method == 'scimm' else 'Fixed-IMM'} mode posterior, episode {Path(episode_file).stem}")
     fig.tight_layout()
     out = Path(out)
-    tmp = out.with_name(out.stem + ".tmp.png")
-    fig.savefig(tmp, dpi=110)
+    write_atomic(out, lambda tmp: fig.savefig(tmp, dpi=110, format="png"))
     plt.close(fig)
-    tmp.replace(out)
     return out

@@ -34,8 +34,9 @@ def load_run(folder: Path) -> dict[str, float]:
     except (json.JSONDecodeError, UnicodeDecodeError, KeyError, TypeError, ValueError) as exc:
         raise ReportError(f"{res}: not a Leaderboard results file ({type(exc).__name__}: {exc})") from None
     if data.get("entry_status") != "Finished":  # DS counts routes not run as 0; the records hold only those run
-        done, total = data["_checkpoint"].get("progress", ["?", "?"])[:2]
-        raise ReportError(f"{folder}: the run is not finished ({done} of {total} route runs): finish it with "
+        prog = data["_checkpoint"].get("progress")
+        done = f"{prog[0]} of {prog[1]} route runs" if isinstance(prog, list) and len(prog) >= 2 else "progress unknown"
+        raise ReportError(f"{folder}: the run is not finished ({done}): finish it with "
                           "'sumo-scimm eval ... --resume', or leave it out")
     rows = _records(rec)
     km = sum(r["km_driven"] for r in rows)

@@ -17,6 +17,12 @@ all rows: v(0) is the first label speed (the mean over the first 0.25 s), psi(s_
 heading of the chord from point k to k+1 (19 values), kappa(0) = (psi(s_1) - psi(s_0)) / 1 m.
 Groups: the argmax of the SC-IMM posterior of the frame (Avoidance and Recovery merged),
 the same grouping for the three rows; a group's value is the mean over its frames.
+
+Each frame's labels are in its own ego frame, so the deltas also measure the ego's own
+motion between frames (its yaw, its sideways drift, the 0.25 s the speed window slides).
+``moved_metrics`` adds the three deltas with frame t-1's labels first moved into frame t
+(columns ``*_moved``, from the ego poses of the episode files): a label that stays put in
+the world then scores 0 (docs/teacher.md, "Caveats").
 """
 from __future__ import annotations
 
@@ -58,19 +64,101 @@ def frame_metrics(path: np.ndarray, speed: np.ndarray, dt: float = DT) -> dict[s
     return out
 
 
+# the delta metrics with frame t-1's labels first moved into frame t (``moved_metrics``)
+MOVED = ("speed_delta_moved", "lat_delta_moved", "heading_delta_moved")
+DISPLAY.update({"speed_delta_moved": "Speed delta, moved", "lat_delta_moved": "Lat delta, moved",
+                "heading_delta_moved": "Heading delta, moved"})
+
+
+def moved_metrics(path: np.ndarray, speed: np.ndarray, pose: np.ndarray) -> dict[str, np.ndarray]:
+    """Speed, Lat and Heading delta of a label sequence with the ego's own motion taken out:
+    frame t-1's labels are moved into frame t before the comparison, so a label that stays
+    put in the world scores 0 whatever the ego does (``frame_metrics`` compares each frame's
+    labels in its own ego frame, and so also measures the ego's yaw and sideways motion).
+
+    path (T, 20, 2) [m] and speed (T, 10) [m/s] as in ``frame_metrics``; pose (T, 3): the
+    ego's world x, y [m] and yaw [rad] at each frame. With d = the distance between the two
+    ego positions [m] (the arc driven in 0.25 s, to within 0.5 % at a 10 m radius):
+
+        lat_delta_moved      mean_k |y_t(s_k) - y'_t-1(s_k + d)|           [m]
+        heading_delta_moved  mean_k |psi_t(s_k) - psi'_t-1(s_k + d)|        [rad]
+        speed_delta_moved    mean_k |v_t(tau_k) - v_t-1(tau_k + 0.25 s)|    [m/s], k = 0..8
+
+    where ' marks frame t-1's path in frame t's ego frame, read by linear interpolation
+    along it at arc length s_k + d; only the points with s_k + d inside frame t-1's 19 m
+    count. Frame 0 is NaN."""
+    path, speed, pose = (np.asarray(a, dtype=float) for a in (path, speed, pose))
+    T = len(speed)
+    out = {m: np.full(T, np.nan) for m in MOVED}
+    if T < 2:
+        return out
+    out["speed_delta_moved"][1:] = np.mean(np.abs(speed[1:, :-1] - speed[:-1, 1:]), axis=1)
+    dxy = pose[:-1, None, :2] - pose[1:, None, :2]  # (T-1, 1, 2) old ego minus new ego, world
+    dyaw = pose[:-1, 2] - pose[1:, 2]  # (T-1,) rotation from frame t-1 to frame t
+    c, s_ = np.cos(pose[:-1, 2:3]), np.sin(pose[:-1, 2:3])  # frame t-1 -> world
+    px, py = path[:-1, :, 0], path[:-1, :, 1]
+    wx, wy = c * px - s_ * py + dxy[..., 0], s_ * px + c * py + dxy[..., 1]  # relative to the new ego
+    c, s_ = np.cos(pose[1:, 2:3]), np.sin(pose[1:, 2:3])  # world -> frame t
+    old = np.stack([c * wx + s_ * wy, -s_ * wx + c * wy], axis=-1)  # (T-1, 20, 2)
+    d = np.hypot(dxy[:, 0, 0], dxy[:, 0, 1])  # (T-1,)
+    seg = np.hypot(*np.diff(path[:-1], axis=1).transpose(2, 0, 1))  # (T-1, 19) chord lengths of t-1
+    cum = np.concatenate([np.zeros((T - 1, 1)), np.cumsum(seg, axis=1)], axis=1)  # (T-1, 20)
+    want = pathspeed.PATH_S[None, :] + d[:, None]  # (T-1, 20) arc length on t-1's path
+    inside = want <= cum[:, -1:]
+    y_old = _interp_rows(want, cum, old[..., 1])
+    out["lat_delta_moved"][1:] = _masked_mean(np.abs(path[1:, :, 1] - y_old), inside)
+    psi_new = pathspeed.chord_headings(path[1:])  # (T-1, 19) at s_k + 0.5
+    psi_old = pathspeed.chord_headings(path[:-1]) + dyaw[:, None]  # in frame t's axes
+    mid = 0.5 * (cum[:, 1:] + cum[:, :-1])  # chord midpoints of t-1 [m]
+    want_mid = pathspeed.CHORD_S[None, :] + d[:, None]
+    inside_mid = (want_mid >= mid[:, :1]) & (want_mid <= mid[:, -1:])
+    turned = np.abs(psi_new - _interp_rows(want_mid, mid, psi_old))
+    out["heading_delta_moved"][1:] = _masked_mean(np.abs((turned + np.pi) % (2 * np.pi) - np.pi), inside_mid)
+    return out
+
+
+def _interp_rows(x: np.ndarray, xp: np.ndarray, fp: np.ndarray) -> np.ndarray:
+    """np.interp row by row, vectorised: x (R, K) at increasing xp (R, N) with values fp (R, N)."""
+    R, N = xp.shape
+    i = np.clip(_searchsorted_rows(xp, x), 1, N - 1)
+    rows = np.arange(R)[:, None]
+    x0, x1, f0, f1 = xp[rows, i - 1], xp[rows, i], fp[rows, i - 1], fp[rows, i]
+    w = np.divide(x - x0, x1 - x0, out=np.zeros_like(x), where=x1 > x0)
+    return f0 + np.clip(w, 0.0, 1.0) * (f1 - f0)
+
+
+def _searchsorted_rows(xp: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """Per row r, np.searchsorted(xp[r], x[r]): rows shifted apart so one search serves all."""
+    R = len(xp)
+    span = max(float(np.nanmax(np.abs(xp))) if xp.size else 0.0, float(np.nanmax(np.abs(x))) if x.size else 0.0)
+    shift = (2.0 * span + 1.0) * np.arange(R)[:, None]
+    flat = np.searchsorted((xp + shift).ravel(), (x + shift).ravel()).reshape(x.shape)
+    return flat - xp.shape[1] * np.arange(R)[:, None]
+
+
+def _masked_mean(values: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    """Row means of values (R, K) over the entries where mask is True; NaN for an empty row."""
+    n = mask.sum(axis=1)
+    total = np.where(mask, values, 0.0).sum(axis=1)
+    return np.divide(total, n, out=np.full(len(n), np.nan), where=n > 0)
+
+
 def group_of(mu: np.ndarray) -> np.ndarray:
     """(T,) group index into ``GROUPS`` of posteriors mu (T, 5): argmax, Avoidance/Recovery merged."""
     return np.minimum(np.argmax(mu, axis=-1), len(GROUPS) - 1)
 
 
 def table2(episodes: Sequence[dict[str, dict[str, np.ndarray]]], rows: Sequence[str] = ROWS) -> pd.DataFrame:
-    """Table 2 from episodes, each {row name: {"path", "speed"}} plus "scimm" holding "mu".
-    Returns one line per (group, row): group, method, frames, and the metric means."""
+    """Table 2 from episodes, each {row name: {"path", "speed"}} plus "scimm" holding "mu",
+    and optionally "pose" (T, 3) world x, y [m], yaw [rad] for the ``MOVED`` columns (NaN
+    without it). Returns one line per (group, row): group, method, frames, the metric means."""
     per_row: dict[str, list[pd.DataFrame]] = {r: [] for r in rows}
     for ep in episodes:
         g = group_of(ep["scimm"]["mu"])
         for r in rows:
             df = pd.DataFrame(frame_metrics(ep[r]["path"], ep[r]["speed"]))
+            if "pose" in ep:
+                df = df.assign(**moved_metrics(ep[r]["path"], ep[r]["speed"], ep["pose"]))
             df["group"] = g
             per_row[r].append(df)
     lines = []
@@ -79,18 +167,20 @@ def table2(episodes: Sequence[dict[str, dict[str, np.ndarray]]], rows: Sequence[
             df = pd.concat(per_row[r], ignore_index=True)
             sel = df[df["group"] == gi]
             line = {"mode": gname, "method": ROW_NAMES[r], "frames": len(sel)}
-            line.update({m: float(sel[m].mean()) if sel[m].notna().any() else np.nan for m in METRICS})
+            line.update({m: float(sel[m].mean()) if m in sel and sel[m].notna().any() else np.nan
+                         for m in (*METRICS, *MOVED)})
             lines.append(line)
-    return pd.DataFrame(lines, columns=["mode", "method", "frames", *METRICS])
+    return pd.DataFrame(lines, columns=["mode", "method", "frames", *METRICS, *MOVED])
 
 
 def format_table2(table: pd.DataFrame) -> str:
-    """Table 2 as aligned text, paper layout."""
-    head = f"{'Mode':19} {'Method':20} {'frames':>7} " + " ".join(f"{DISPLAY[m]:>19}" for m in METRICS)
+    """Table 2 as aligned text, paper layout (then the ``MOVED`` columns, when computed)."""
+    cols = [*METRICS, *(m for m in MOVED if m in table and table[m].notna().any())]
+    head = f"{'Mode':19} {'Method':20} {'frames':>7} " + " ".join(f"{DISPLAY[m]:>20}" for m in cols)
     lines = [head]
     for _, r in table.iterrows():
         lines.append(f"{r['mode']:19} {r['method']:20} {r['frames']:7d} "
-                     + " ".join(f"{r[m]:19.4g}" for m in METRICS))
+                     + " ".join(f"{r[m]:20.4g}" for m in cols))
     return "\n".join(lines)
 
 
@@ -188,7 +278,8 @@ def evaluate(data: Path, files: Sequence[Path], methods: Sequence[str] = ("fixed
     episodes, sits = [], []
     for f in files:
         with np.load(f, allow_pickle=False) as a:
-            ep = {"raw": {"path": a["path"], "speed": pathspeed.label_speeds(a["speed_wps"])}}
+            ep = {"raw": {"path": a["path"], "speed": pathspeed.label_speeds(a["speed_wps"])},
+                  "pose": np.stack([a["x"], a["y"], a["yaw"]], axis=-1)}
         ep.update({m: load_teacher(data, m, f.stem) for m in methods})
         episodes.append(ep)
         sits.append(situations(f))

@@ -40,7 +40,8 @@ def synthetic_episode(T: int, turn: slice = slice(0, 0), seed: int = 0) -> dict[
     speeds = ps.state_speeds(x) + rng.normal(0, 0.05, (T, 10))
     dist = np.cumsum(speeds * ps.SPEED_DT, axis=1)
     a = {"path": ps.state_path(x), "speed_wps": np.stack([dist, np.zeros_like(dist)], -1),
-         "v": np.full(T, 8.0), "target_speed": np.full(T, 8.0)}
+         "v": np.full(T, 8.0), "target_speed": np.full(T, 8.0),  # the ego pose: 2 m a frame along x
+         "x": 2.0 * np.arange(T), "y": np.zeros(T), "yaw": np.zeros(T)}
     for k in CUE_ARRAYS:
         a[k] = np.zeros(T, dtype=bool if k.startswith("flag") else float)
     a["command"] = np.full(T, 4)
@@ -280,3 +281,33 @@ def test_fit_residuals_are_zero_for_representable_labels_and_grouped_by_dominant
     # the corner by metres (1.90 m here; > 1 m leaves room for any least-squares solver)
     assert table.loc["Turn", "path_mean"] > 1.0 and table.loc["Turn", "path_mean"] == table.loc["Turn", "path_max"]
     assert table.loc["Deceleration", "frames"] == 0 and np.isnan(table.loc["Deceleration", "path_mean"])
+
+
+def test_moved_metrics_take_out_the_egos_own_motion():
+    """A world-fixed road (20 m straight, a 90 deg arc of radius 10 m, straight again, its
+    vertices 1 m apart) seen from an ego that advances one vertex a frame: every frame's
+    labels are the same road, so the moved deltas are 0 (to rounding), while the plain
+    ones see the arc come into view. A label shifted 0.1 m sideways in one frame then
+    scores exactly 0.1 m at that frame and the next."""
+    from scimm.table2 import moved_metrics
+    R, theta = 10.0, 2 * np.arcsin(0.05)  # chord of 1 m on the arc
+    arc = [(20 + R * np.sin(j * theta), R - R * np.cos(j * theta)) for j in range(1, int((np.pi / 2) / theta) + 1)]
+    end, last = np.array(arc[-1]), theta * len(arc)
+    after = [end + k * np.array([np.cos(last), np.sin(last)]) for k in range(1, 25)]
+    road = np.array([(float(i), 0.0) for i in range(21)] + arc + after)
+    T = 30
+    heading = np.arctan2(*np.diff(road, axis=0)[:, ::-1].T)
+    pose = np.array([(road[i, 0], road[i, 1], heading[i]) for i in range(T)])
+    c, s = np.cos(pose[:, 2])[:, None], np.sin(pose[:, 2])[:, None]
+    rel = np.stack([road[i:i + 20] - road[i] for i in range(T)])  # (T, 20, 2) world offsets
+    path = np.stack([c * rel[..., 0] + s * rel[..., 1], -s * rel[..., 0] + c * rel[..., 1]], axis=-1)
+    speed = 5 + np.sin(np.arange(T)[:, None] + np.arange(10)[None, :])  # v_t(k) = v_t-1(k + 1)
+    moved, plain = moved_metrics(path, speed, pose), frame_metrics(path, speed)
+    for m in ("lat_delta_moved", "heading_delta_moved", "speed_delta_moved"):
+        assert np.isnan(moved[m][0]) and np.nanmax(moved[m]) < 1e-9, m
+    assert np.nanmax(plain["lat_delta"]) > 0.5 and np.nanmax(plain["heading_delta"]) > 0.05
+    assert np.nanmin(plain["speed_delta"]) > 0.1
+    path[12, :, 1] += 0.1  # one frame's label moved sideways (in its own ego frame)
+    lat = moved_metrics(path, speed, pose)["lat_delta_moved"]
+    np.testing.assert_allclose(lat[[12, 13]], 0.1, atol=1e-9)
+    assert np.nanmax(np.delete(lat, [12, 13])) < 1e-9

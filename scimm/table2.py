@@ -22,7 +22,8 @@ Each frame's labels are in its own ego frame, so the deltas also measure the ego
 motion between frames (its yaw, its sideways drift, the 0.25 s the speed window slides).
 ``moved_metrics`` adds the three deltas with frame t-1's labels first moved into frame t
 (columns ``*_moved``, from the ego poses of the episode files): a label that stays put in
-the world then scores 0 (docs/teacher.md, "Caveats").
+the world then scores 0 (docs/teacher.md, "Caveats"). ``from_raw`` adds how far each
+row's labels are from the raw expert's at the same frame (``*_from_raw``).
 """
 from __future__ import annotations
 
@@ -68,6 +69,21 @@ def frame_metrics(path: np.ndarray, speed: np.ndarray, dt: float = DT) -> dict[s
 MOVED = ("speed_delta_moved", "lat_delta_moved", "heading_delta_moved")
 DISPLAY.update({"speed_delta_moved": "Speed delta, moved", "lat_delta_moved": "Lat delta, moved",
                 "heading_delta_moved": "Heading delta, moved"})
+
+
+# how far a row's labels are from the raw expert's at the same frame (``from_raw``)
+FROM_RAW = ("speed_from_raw", "lat_from_raw")
+DISPLAY.update({"speed_from_raw": "Speed from raw", "lat_from_raw": "Lat from raw"})
+
+
+def from_raw(path: np.ndarray, speed: np.ndarray, raw_path: np.ndarray, raw_speed: np.ndarray) -> dict[str, np.ndarray]:
+    """Per frame, how far labels are from the raw expert labels of the same frame:
+    speed_from_raw = mean_k |v(tau_k) - v_raw(tau_k)| [m/s], lat_from_raw = mean_k
+    |y(s_k) - y_raw(s_k)| [m] (shapes as ``frame_metrics``). A teacher that lags the
+    expert's braking, or cuts its bends, shows here; the raw row scores 0."""
+    return {"speed_from_raw": np.mean(np.abs(np.asarray(speed, float) - raw_speed), axis=1),
+            "lat_from_raw": np.mean(np.abs(np.asarray(path, float)[..., 1] - np.asarray(raw_path, float)[..., 1]),
+                                    axis=1)}
 
 
 def moved_metrics(path: np.ndarray, speed: np.ndarray, pose: np.ndarray) -> dict[str, np.ndarray]:
@@ -151,7 +167,8 @@ def group_of(mu: np.ndarray) -> np.ndarray:
 def table2(episodes: Sequence[dict[str, dict[str, np.ndarray]]], rows: Sequence[str] = ROWS) -> pd.DataFrame:
     """Table 2 from episodes, each {row name: {"path", "speed"}} plus "scimm" holding "mu",
     and optionally "pose" (T, 3) world x, y [m], yaw [rad] for the ``MOVED`` columns (NaN
-    without it). Returns one line per (group, row): group, method, frames, the metric means."""
+    without it); the ``FROM_RAW`` columns compare each row with the "raw" one (NaN without
+    it). Returns one line per (group, row): group, method, frames, the metric means."""
     per_row: dict[str, list[pd.DataFrame]] = {r: [] for r in rows}
     for ep in episodes:
         g = group_of(ep["scimm"]["mu"])
@@ -159,6 +176,8 @@ def table2(episodes: Sequence[dict[str, dict[str, np.ndarray]]], rows: Sequence[
             df = pd.DataFrame(frame_metrics(ep[r]["path"], ep[r]["speed"]))
             if "pose" in ep:
                 df = df.assign(**moved_metrics(ep[r]["path"], ep[r]["speed"], ep["pose"]))
+            if "raw" in ep:
+                df = df.assign(**from_raw(ep[r]["path"], ep[r]["speed"], ep["raw"]["path"], ep["raw"]["speed"]))
             df["group"] = g
             per_row[r].append(df)
     lines = []
@@ -168,14 +187,15 @@ def table2(episodes: Sequence[dict[str, dict[str, np.ndarray]]], rows: Sequence[
             sel = df[df["group"] == gi]
             line = {"mode": gname, "method": ROW_NAMES[r], "frames": len(sel)}
             line.update({m: float(sel[m].mean()) if m in sel and sel[m].notna().any() else np.nan
-                         for m in (*METRICS, *MOVED)})
+                         for m in (*METRICS, *MOVED, *FROM_RAW)})
             lines.append(line)
-    return pd.DataFrame(lines, columns=["mode", "method", "frames", *METRICS, *MOVED])
+    return pd.DataFrame(lines, columns=["mode", "method", "frames", *METRICS, *MOVED, *FROM_RAW])
 
 
 def format_table2(table: pd.DataFrame) -> str:
-    """Table 2 as aligned text, paper layout (then the ``MOVED`` columns, when computed)."""
-    cols = [*METRICS, *(m for m in MOVED if m in table and table[m].notna().any())]
+    """Table 2 as aligned text, paper layout (then the ``MOVED`` and ``FROM_RAW`` columns,
+    when computed)."""
+    cols = [*METRICS, *(m for m in (*MOVED, *FROM_RAW) if m in table and table[m].notna().any())]
     head = f"{'Mode':19} {'Method':20} {'frames':>7} " + " ".join(f"{DISPLAY[m]:>20}" for m in cols)
     lines = [head]
     for _, r in table.iterrows():

@@ -311,3 +311,20 @@ def test_moved_metrics_take_out_the_egos_own_motion():
     lat = moved_metrics(path, speed, pose)["lat_delta_moved"]
     np.testing.assert_allclose(lat[[12, 13]], 0.1, atol=1e-9)
     assert np.nanmax(np.delete(lat, [12, 13])) < 1e-9
+
+
+def test_table2_says_how_far_each_row_is_from_the_raw_labels():
+    """Two frames; the teacher's speeds are the raw ones + 0.5 m/s at frame 1 only, its path
+    0.2 m to the left at both: from-raw speed 0 and 0.5 (mean 0.25), lat 0.2; raw scores 0."""
+    path = np.zeros((2, 20, 2))
+    path[..., 0] = np.arange(20)
+    speed = np.full((2, 10), 3.0)
+    t_path, t_speed = path.copy(), speed.copy()
+    t_path[..., 1] += 0.2
+    t_speed[1] += 0.5
+    ep = {"raw": {"path": path, "speed": speed},
+          "scimm": {"path": t_path, "speed": t_speed, "mu": np.eye(5)[[0, 0]]}}
+    t = table2([ep], rows=("raw", "scimm")).set_index(["mode", "method"])
+    assert t.loc[("Cruise", "SC-IMM"), "speed_from_raw"] == 0.25
+    np.testing.assert_allclose(t.loc[("Cruise", "SC-IMM"), "lat_from_raw"], 0.2, rtol=1e-15)
+    assert t.loc[("Cruise", "Original Raw Expert"), ["speed_from_raw", "lat_from_raw"]].tolist() == [0.0, 0.0]

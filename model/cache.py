@@ -29,6 +29,8 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
+from scimm.teacher import episode_files
+
 BEV_SHAPE = (9, 64, 64)  # harness.bev: (channels, rows, columns)
 BEV_THRESHOLD = 64  # uint8 level at and above which a BEV pixel is "on"
 PACKED_BYTES = int(np.prod(BEV_SHAPE)) // 8
@@ -52,11 +54,6 @@ def pack(bev: np.ndarray) -> np.ndarray:
 def unpack(packed: np.ndarray) -> np.ndarray:
     """(..., 4608) uint8 bits -> (..., 9, 64, 64) uint8 in {0, 1}."""
     return np.unpackbits(packed, axis=-1).reshape(*packed.shape[:-1], *BEV_SHAPE)
-
-
-def episode_files(folder: Path) -> list[Path]:
-    """The dataset's episode files in a fixed order (sorted by name)."""
-    return sorted((Path(folder) / "episodes").glob("*.npz"))
 
 
 def dataset_hash(folder: Path) -> str:

@@ -44,8 +44,10 @@ def episode_files(data: Path) -> list[Path]:
     return sorted((Path(data) / "episodes").glob("*.npz"))
 
 
-def dataset_hash(files: Sequence[Path]) -> str:
-    """sha1 over the episode names and sizes: changes when the dataset is re-collected."""
+def dataset_fingerprint(files: Sequence[Path]) -> str:
+    """sha1 over the episode names and sizes: changes when the dataset is re-collected (a
+    cheap check written to the teacher manifest as ``dataset_hash``; the student's cache
+    and manifest hash the files' bytes, model.cache.dataset_hash)."""
     h = hashlib.sha1()
     for f in files:
         h.update(f"{f.name}:{f.stat().st_size};".encode())
@@ -116,7 +118,7 @@ def write_teacher(data: Path, method: str, labels: dict[str, dict[str, np.ndarra
                 np.savez(fh, **arrays)
         write_atomic(folder / f"{stem}.npz", write)
     meta = {"method": method, "modes": ["Cruise", "Turn", "Deceleration", "Avoidance", "Recovery"],
-            "episodes": len(files), "dataset_hash": dataset_hash(files),
+            "episodes": len(files), "dataset_hash": dataset_fingerprint(files),
             "created": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
             "parameters": cfg.as_dict()}
     write_atomic(manifest, json.dumps(meta, indent=1))

@@ -107,15 +107,24 @@ def _run(jobs: list, out: Path, args: argparse.Namespace, **kwargs) -> list[dict
         raise BadInput(str(exc)) from None
 
 
-def check_agent(name: str, config: str | None) -> None:
-    """BadInput unless the agent loads and accepts its config (``--agent-config``, a file)."""
+def check_agent(name: str, config: str | None) -> tuple[str, str | None]:
+    """(agent, config) to run, checked: BadInput unless the agent loads and accepts its
+    config (``--agent-config``, a file). ``--agent PATH.pt`` names a student checkpoint
+    (SPEC §3): it is ``--agent student --agent-config PATH.pt``."""
     from harness.agent import AgentLoadError, load_agent
+    if name.endswith(".pt") and ":" not in name:
+        if not Path(name).is_file():
+            raise BadInput(f"--agent {name!r}: no such checkpoint file")
+        if config and Path(config).resolve() != Path(name).resolve():
+            raise BadInput(f"--agent {name!r} is a checkpoint: drop --agent-config {config!r}")
+        name, config = "student", name
     if config and not Path(config).is_file():
         raise BadInput(f"--agent-config {config!r} does not exist")
     try:
         load_agent(name).check_config(config)
     except (AgentLoadError, ValueError, OSError) as exc:
         raise BadInput(str(exc)) from None
+    return name, config
 
 
 def _eval(args: argparse.Namespace) -> int:
@@ -129,7 +138,7 @@ def _eval(args: argparse.Namespace) -> int:
     _, problems = check_file(path)
     if problems:
         raise BadInput(f"{path}: {problems[0]} (run 'sumo-scimm routes check {path}')")
-    check_agent(args.agent, args.agent_config)
+    args.agent, args.agent_config = check_agent(args.agent, args.agent_config)
     _, all_routes = read_routes(path)
     keep = set(_subset(args.routes_subset, [r.id for r in all_routes]))
     routes = [r for r in all_routes if r.id in keep]
@@ -174,7 +183,7 @@ def _render(args: argparse.Namespace) -> int:
         raise BadInput(f"route {args.route!r} is not in {path.name} (ids {ids[0]}..{ids[-1]})")
     if not args.out.endswith(".mp4"):
         raise BadInput(f"--out {args.out!r} must end in .mp4 (a PNG of the path is written beside it)")
-    check_agent(args.agent, args.agent_config)
+    args.agent, args.agent_config = check_agent(args.agent, args.agent_config)
     k = ids.index(args.route)
     res, png = render_route(routes[k], args.agent, args.agent_config, route_seed(args.seed, k), Path(args.out))
     print(f"route {args.route}: {res.status}, RC {res.rc:.2f}, {res.game_time:.1f} s -> {args.out}, {png}")
@@ -273,7 +282,8 @@ def build_parser() -> argparse.ArgumentParser:
     e.add_argument("--routes", required=True, help="route set name (e.g. town12_short) or route file")
     e.add_argument("--routes-subset", help="route ids to run: '3', '0-9', '1,4,7'")
     e.add_argument("--repetitions", type=int, default=1, help="runs per route (default 1)")
-    e.add_argument("--agent", default=DEFAULT_AGENT, help=f"agent name or module:Class (default {DEFAULT_AGENT})")
+    e.add_argument("--agent", default=DEFAULT_AGENT,
+                   help=f"agent name, module:Class, or a student checkpoint (.pt) (default {DEFAULT_AGENT})")
     e.add_argument("--agent-config", help="file passed to the agent's setup()")
     e.add_argument("--workers", type=int, default=None,
                    help="worker processes, one libsumo each (default: number of cores; with --backend ray, "
@@ -293,7 +303,8 @@ def build_parser() -> argparse.ArgumentParser:
     r = sub.add_parser("render", help="video of the BEV while an agent drives one route, and a path PNG")
     r.add_argument("--routes", required=True, help="route set name or route file")
     r.add_argument("--route", required=True, help="route id")
-    r.add_argument("--agent", default=DEFAULT_AGENT, help=f"agent (default {DEFAULT_AGENT})")
+    r.add_argument("--agent", default=DEFAULT_AGENT,
+                   help=f"agent name, module:Class, or a student checkpoint (.pt) (default {DEFAULT_AGENT})")
     r.add_argument("--agent-config", help="file passed to the agent's setup()")
     r.add_argument("--out", required=True, help="video file (.mp4); the path PNG goes beside it")
     r.add_argument("--seed", type=seed_arg, default=0, help="run seed, as in eval (default 0)")

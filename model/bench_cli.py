@@ -24,26 +24,48 @@ from __future__ import annotations
 import argparse
 import itertools
 import json
+import math
 import tempfile
 import time
 from pathlib import Path
 
+from harness.agent import DEFAULT_AGENT
 from harness.atomic import write_atomic
 
-EVAL_TARGET_S, OVERHEAD_TARGET, RSS_TARGET_MB = 180.0, 2.0, 800.0
+EVAL_TARGET_S, OVERHEAD_TARGET, RSS_TARGET_MB, REPRODUCE_TARGET_S = 180.0, 2.0, 800.0, 3600.0
 
 
-def _eval_figures(agent: str, agent_config: str | None, workers: int) -> dict:
+def _eval_figures(agent: str, agent_config: str | None, workers: int, routes: str = "town12_short",
+                  repetitions: int = 1) -> dict:
+    """Wall time and worker memory of ``sumo-scimm eval`` on ``routes`` (``repetitions``
+    passes) with ``workers`` workers, in a temporary run folder."""
     from harness.cli import main
     from harness.runner import rss_summary
     with tempfile.TemporaryDirectory(prefix="sumo-scimm-bench-") as tmp:
-        argv = ["eval", "--routes", "town12_short", "--agent", agent, "--workers", str(workers), "--out", tmp + "/run"]
+        argv = ["eval", "--routes", routes, "--agent", agent, "--workers", str(workers), "--out", tmp + "/run",
+                "--repetitions", str(repetitions)]
         t0 = time.perf_counter()
         if main(argv + (["--agent-config", agent_config] if agent_config else [])) != 0:
-            raise RuntimeError("the town12_short evaluation failed")
+            raise RuntimeError(f"the {routes} evaluation failed")
         wall = time.perf_counter() - t0
+        rss = rss_summary(Path(tmp) / "run")
         return {"eval_wall_s": round(wall, 1), "eval_workers": workers, "eval_target_s": EVAL_TARGET_S,
-                "rss": rss_summary(Path(tmp) / "run"), "rss_target_mb": RSS_TARGET_MB}
+                "rss": rss, "rss_target_mb": RSS_TARGET_MB, "routes": routes, "repetitions": repetitions,
+                "route_runs": len((Path(tmp) / "run" / "records.jsonl").read_text().splitlines())}
+
+
+def _reproduce_figure(folder: str) -> dict:
+    """The stage wall times a finished ``sumo-scimm reproduce`` recorded in FOLDER/stages.json
+    (measured when it ran, not now: reproduce takes about an hour)."""
+    from harness.errors import BadInput
+    path = Path(folder) / "stages.json"
+    try:
+        times = json.loads(path.read_text())
+        total = float(sum(times.values()))
+    except (OSError, ValueError, TypeError, AttributeError) as exc:
+        raise BadInput(f"--reproduce {folder}: no readable stages.json of 'sumo-scimm reproduce' ({exc})") from None
+    return {"reproduce_dir": str(folder), "reproduce_wall_s": round(total, 1), "stages": len(times),
+            "reproduce_target_s": REPRODUCE_TARGET_S}
 
 
 def machine() -> dict:
@@ -112,9 +134,12 @@ def _bench(args: argparse.Namespace) -> int:
     from scimm.bench import format_imm_bench, run_imm_bench
     if args.routes_count < 1 or args.workers < 1:
         raise BadInput("--routes-count and --workers must be >= 1")
-    check_agent(args.agent, args.agent_config)
+    args.agent, args.agent_config = check_agent(args.agent, args.agent_config)
     if args.json and not Path(args.json).resolve().parent.is_dir():
         raise BadInput(f"--json {args.json!r}: no folder {Path(args.json).parent} to write it in")
+    if args.soak < 0:
+        raise BadInput(f"--soak {args.soak}: must be >= 0 route runs")
+    reproduce = _reproduce_figure(args.reproduce) if args.reproduce else None
     m = machine()
     print(f"machine: {m['cpu']}, {m['cores']} cores; torch {m['torch']} ({m['torch_cpu_capability']} kernels), "
           f"libsumo {m['libsumo']}, numpy {m['numpy']}, Python {m['python']}")
@@ -152,6 +177,21 @@ def _bench(args: argparse.Namespace) -> int:
         if rss:
             print(f"worker memory          peak {rss['peak_mb']:.0f} MB, growth {rss['growth_mb']:+.1f} MB over "
                   f"{rss['max_routes_per_worker']} routes (target <= {RSS_TARGET_MB:g} MB, flat)")
+    if args.soak:
+        from scenarios import resolve_set
+        from scenarios.routefile import read_routes
+        n_set = len(read_routes(resolve_set(args.routes))[1])
+        r["soak"] = _eval_figures(args.agent, args.agent_config, args.workers, args.routes, -(-args.soak // n_set))
+        s, rss = r["soak"], r["soak"]["rss"] or {}
+        print(f"worker memory, soak    {s['route_runs']} route runs of {args.routes} on {s['eval_workers']} workers "
+              f"({s['eval_wall_s']:.0f} s): peak {rss.get('peak_mb', math.nan):.0f} MB, growth "
+              f"{rss.get('growth_mb', math.nan):+.1f} MB, trend {rss.get('slope_mb_per_100', math.nan):+.2f} MB "
+              f"per 100 routes (target <= {RSS_TARGET_MB:g} MB, flat over 500)")
+    if reproduce:
+        r["reproduce"] = reproduce
+        print(f"reproduce              {reproduce['reproduce_wall_s'] / 60:8.1f} min, {reproduce['stages']} stages, "
+              f"from {reproduce['reproduce_dir']}/stages.json as measured when it ran "
+              f"(target <= {REPRODUCE_TARGET_S / 60:g} min)")
     if args.json:
         write_atomic(Path(args.json), json.dumps(r, indent=2) + "\n")
     return 0
@@ -162,9 +202,16 @@ def register(sub: argparse._SubParsersAction) -> None:
     bn = sub.add_parser("bench", help="performance figures beside their references (SPEC §11)")
     bn.add_argument("--routes", default="town12_smoke", help="route set of the per-tick figures (default town12_smoke)")
     bn.add_argument("--routes-count", type=int, default=4, help="routes of the set to run (default 4)")
-    bn.add_argument("--agent", default="route_follower", help="agent of the closed-loop figures (default route_follower)")
+    bn.add_argument("--agent", default=DEFAULT_AGENT,
+                    help=f"agent of the closed-loop figures (default {DEFAULT_AGENT}, the shipped SC-IMM student)")
     bn.add_argument("--agent-config", help="the agent's config (a student's checkpoint)")
     bn.add_argument("--eval", action="store_true", help="also time a whole town12_short evaluation")
     bn.add_argument("--workers", type=int, default=2, help="workers of the --eval run (default 2)")
+    bn.add_argument("--soak", type=int, default=0, metavar="N",
+                    help="also run at least N route runs of --routes (whole passes over the set) on --workers "
+                         "and report worker memory over them (SPEC §11: --soak 500 --routes town12_short, "
+                         "about 4 min per 100 routes with the student)")
+    bn.add_argument("--reproduce", metavar="DIR",
+                    help="also print the wall time a finished 'sumo-scimm reproduce --out DIR' recorded")
     bn.add_argument("--json", help="also write the figures as JSON to this file")
     bn.set_defaults(func=_bench)

@@ -163,7 +163,8 @@ def make_optimizer(model: Student) -> torch.optim.AdamW:
 def train(cfg: TrainConfig) -> Path:
     """Train one student; returns the model checkpoint file (``cfg.out/student.pt``)."""
     t0 = time.perf_counter()
-    # seed
+    # seed: the network's initial weights come from torch's global generator,
+    # seeded here (torch.nn layers take no generator); every other draw from rng below
     torch.manual_seed(cfg.seed)
     torch.use_deterministic_algorithms(True)
     torch.set_num_threads(cfg.threads)

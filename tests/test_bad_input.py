@@ -149,3 +149,21 @@ def test_data_show_on_damaged_or_empty_datasets(tmp_path):
     code, printed = _cli(["data", "show", str(tmp_path / "data")])
     _one_line_exit_2(code, printed, "index.csv is damaged")
     assert sorted(p.name for p in (tmp_path / "data").iterdir()) == ["episodes", "index.csv"]
+
+
+def test_agent_may_be_a_student_checkpoint_path(tmp_path):
+    """SPEC §3: ``--agent PATH.pt`` is the student agent with that checkpoint; a missing
+    file, or a different --agent-config beside it, is one line."""
+    from harness.cli import check_agent
+    ckpt = Path(__file__).resolve().parents[1] / "model" / "checkpoints" / "scimm" / "student.pt"
+    assert check_agent(str(ckpt), None) == ("student", str(ckpt))
+    assert check_agent(str(ckpt), str(ckpt)) == ("student", str(ckpt))
+    code, printed = _cli(["eval", "--routes", "town12_smoke", "--agent", str(tmp_path / "nope.pt"),
+                          "--out", str(tmp_path / "run")])
+    _one_line_exit_2(code, printed, "no such checkpoint file")
+    other = tmp_path / "other.pt"
+    other.write_bytes(ckpt.read_bytes())
+    code, printed = _cli(["eval", "--routes", "town12_smoke", "--agent", str(ckpt), "--agent-config", str(other),
+                          "--out", str(tmp_path / "run")])
+    _one_line_exit_2(code, printed, "is a checkpoint: drop --agent-config")
+    assert not (tmp_path / "run").exists()

@@ -48,3 +48,20 @@ def test_bench_prints_and_writes_every_figure_beside_its_reference(tmp_path, cap
     m = r["machine"]
     assert m["cpu"] and m["cores"] >= 1 and m["torch_cpu_capability"] and m["libsumo"] == "1.28.0"
     assert f"machine: {m['cpu']}, {m['cores']} cores" in printed
+
+
+def test_bench_soak_and_reproduce_figures(tmp_path, capsys):
+    """--soak N runs whole passes over --routes until N route runs (4 smoke routes: 2 passes
+    for N = 5) and reports their worker memory; --reproduce reads a reproduce run's stage
+    times; a folder without stages.json is one line, exit 2."""
+    (tmp_path / "rep").mkdir()
+    (tmp_path / "rep" / "stages.json").write_text(json.dumps({"collect": 600.0, "train": 1200.5}))
+    out = tmp_path / "bench.json"
+    argv = ["bench", "--routes-count", "1", "--agent", "route_follower", "--soak", "5", "--reproduce",
+            str(tmp_path / "rep"), "--json", str(out)]
+    assert main(argv) == 0
+    printed = capsys.readouterr().out
+    r = json.loads(out.read_text())
+    assert r["soak"]["route_runs"] == 8 and r["soak"]["repetitions"] == 2 and r["soak"]["rss"]["peak_mb"] > 0
+    assert r["reproduce"]["reproduce_wall_s"] == 1800.5 and "30.0 min" in printed and "soak" in printed
+    assert main(["bench", "--reproduce", str(tmp_path)]) == 2

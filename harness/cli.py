@@ -176,6 +176,11 @@ def _render(args: argparse.Namespace) -> int:
     from harness.runner import route_seed
     from scenarios import resolve_set
     from scenarios.routefile import read_routes
+    if args.runs:
+        return _render_overlay(args)
+    if not args.routes:
+        raise BadInput("render needs --routes SET (to drive the route), or --runs DIR... (to draw the "
+                       "waypoint overlay of eval runs)")
     path = resolve_set(args.routes)
     _, routes = read_routes(path)
     ids = [r.id for r in routes]
@@ -187,6 +192,25 @@ def _render(args: argparse.Namespace) -> int:
     k = ids.index(args.route)
     res, png = render_route(routes[k], args.agent, args.agent_config, route_seed(args.seed, k), Path(args.out))
     print(f"route {args.route}: {res.status}, RC {res.rc:.2f}, {res.game_time:.1f} s -> {args.out}, {png}")
+    return 0
+
+
+def _render_overlay(args: argparse.Namespace) -> int:
+    """Paper Fig. 5 from eval run folders: each run's consecutive predicted paths of route
+    --route (repetition 0) near the point where the first run steered hardest."""
+    from harness.figures import waypoint_overlay
+    if not args.out.lower().endswith(".png"):
+        raise BadInput(f"--out {args.out!r} must end in .png for the waypoint overlay of --runs")
+    folders = [Path(d) for d in args.runs]
+    key = f"{args.route}_rep0"
+    for f in folders:
+        if not (f / "logs" / f"{key}.npz").is_file():
+            raise BadInput(f"{f}: no log of route {args.route} (logs/{key}.npz); pass run folders of "
+                           "'sumo-scimm eval' that drove it")
+    names = [f.name for f in folders]
+    runs = {(f.name if names.count(f.name) == 1 else str(f)): f for f in folders}
+    out = waypoint_overlay(runs, key, Path(args.out))
+    print(f"route {args.route}: waypoint overlay of {', '.join(runs)} -> {out}")
     return 0
 
 
@@ -300,13 +324,18 @@ def build_parser() -> argparse.ArgumentParser:
     add_backend_options(e)
     e.set_defaults(func=_eval)
 
-    r = sub.add_parser("render", help="video of the BEV while an agent drives one route, and a path PNG")
-    r.add_argument("--routes", required=True, help="route set name or route file")
+    r = sub.add_parser("render", help="video of the BEV while an agent drives one route, and a path PNG; "
+                       "or, with --runs, the waypoint overlay of eval runs (paper Fig. 5)")
+    r.add_argument("--routes", help="route set name or route file (to drive the route)")
     r.add_argument("--route", required=True, help="route id")
+    r.add_argument("--runs", nargs="+", metavar="DIR",
+                   help="eval run folders: draw their predicted paths on --route (Fig. 5, --out F.png) "
+                        "instead of driving it")
     r.add_argument("--agent", default=DEFAULT_AGENT,
                    help=f"agent name, module:Class, or a student checkpoint (.pt) (default {DEFAULT_AGENT})")
     r.add_argument("--agent-config", help="file passed to the agent's setup()")
-    r.add_argument("--out", required=True, help="video file (.mp4); the path PNG goes beside it")
+    r.add_argument("--out", required=True, help="video file (.mp4; the path PNG goes beside it), or with "
+                   "--runs the figure (.png)")
     r.add_argument("--seed", type=seed_arg, default=0, help="run seed, as in eval (default 0)")
     r.set_defaults(func=_render)
 

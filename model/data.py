@@ -36,6 +36,7 @@ import torch
 from harness.bev import EGO_ROW, RES, ROUTE
 from harness.errors import BadInput
 from model import cache as bevcache
+from scimm.teacher import episode_files
 
 TEACHER_METHODS = ("fixed", "scimm")
 
@@ -51,7 +52,7 @@ def move(points: np.ndarray, shift: np.ndarray, rot: np.ndarray) -> np.ndarray:
 
 def check_dataset(folder: Path) -> list[Path]:
     """The folder's episode files; BadInput if it is not a non-empty collect folder."""
-    files = bevcache.episode_files(folder)
+    files = episode_files(folder)
     if not files:
         raise BadInput(f"{folder} holds no episodes (expected {folder}/episodes/*.npz; make them with "
                        f"'sumo-scimm collect --routes train --out {folder}')")

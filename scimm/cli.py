@@ -38,7 +38,7 @@ def _write_csv(table, path: Path) -> None:
 
 def _teacher(args: argparse.Namespace) -> int:
     from scimm.modes import IMMConfig
-    from scimm.table2 import evaluate, evaluate_residuals, format_meaning, format_residuals, format_table2
+    from scimm.table2 import evaluate, format_meaning, format_residuals, format_table2
     folder, files = _dataset(args.data)
     cfg = IMMConfig()
     methods = tch.METHODS if args.method == "all" else (args.method,)
@@ -50,14 +50,13 @@ def _teacher(args: argparse.Namespace) -> int:
     if not all(tch.is_complete(folder, m) for m in ("fixed", "scimm")):
         print("Table 2 needs both teachers: run with --method all")
         return 0
-    table, meaning = evaluate(folder, files)
+    table, meaning, residuals = evaluate(folder, files)
     _write_csv(table, folder / "teacher" / "table2.csv")
     _write_csv(meaning, folder / "teacher" / "mode_meaning.csv")
     print(f"Table 2 ({len(files)} episodes; groups = dominant SC-IMM mode) -> {folder / 'teacher' / 'table2.csv'}")
     print(format_table2(table))
     print("\nMode meaning: frames of each situation whose dominant mode means it")
     print(format_meaning(meaning))
-    residuals = evaluate_residuals(folder, files)
     _write_csv(residuals, folder / "teacher" / "fit_residuals.csv")
     print("\nFit residual of the observation z (paper eq. 2-3) against the expert's labels, per dominant "
           f"SC-IMM mode -> {folder / 'teacher' / 'fit_residuals.csv'}")

@@ -243,17 +243,6 @@ def format_residuals(table: pd.DataFrame) -> str:
     return "\n".join(lines)
 
 
-def evaluate_residuals(data: Path, files: Sequence[Path]) -> pd.DataFrame:
-    """:func:`fit_residuals` of the episode files, grouped by their written SC-IMM teacher."""
-    from scimm.teacher import load_teacher
-    episodes = []
-    for f in files:
-        with np.load(f, allow_pickle=False) as a:
-            episodes.append({"path": a["path"], "speed_wps": a["speed_wps"],
-                             "mu": load_teacher(data, "scimm", f.stem)["mu"]})
-    return fit_residuals(episodes)
-
-
 def mode_meaning(situations: Sequence[np.ndarray], mus: dict[str, Sequence[np.ndarray]]) -> pd.DataFrame:
     """Share of frames of each situation in ``MEANING`` whose dominant mode means it.
 
@@ -282,27 +271,29 @@ def format_meaning(table: pd.DataFrame) -> str:
     return "\n".join(lines)
 
 
-def situations(file: Path) -> np.ndarray:
-    """(T,) situation name of every frame of an episode file (harness.dataset.situation)."""
+def situations(a) -> np.ndarray:
+    """(T,) situation name of every frame of an episode's arrays (harness.dataset.situation)."""
     from harness.dataset import situation
-    with np.load(file, allow_pickle=False) as a:
-        df = pd.DataFrame({"cue_junction": a["cue_junction"], "command": a["command"],
-                           "target_speed": a["target_speed"], "v": a["v"], "cue_changed_route": a["cue_changed_route"]})
+    df = pd.DataFrame({"cue_junction": a["cue_junction"], "command": a["command"],
+                       "target_speed": a["target_speed"], "v": a["v"], "cue_changed_route": a["cue_changed_route"]})
     return df.apply(situation, axis=1).to_numpy(dtype=str) if len(df) else np.array([], dtype=str)
 
 
-def evaluate(data: Path, files: Sequence[Path], methods: Sequence[str] = ("fixed", "scimm")) -> tuple[pd.DataFrame, pd.DataFrame]:
-    """(Table 2, mode-meaning table) of the episode files against their written teachers
-    ``data/teacher/<method>/`` (scimm.teacher file contract)."""
+def evaluate(data: Path, files: Sequence[Path],
+             methods: Sequence[str] = ("fixed", "scimm")) -> tuple[pd.DataFrame, pd.DataFrame, pd.DataFrame]:
+    """(Table 2, mode-meaning table, fit residuals per mode) of the episode files against
+    their written teachers ``data/teacher/<method>/`` (scimm.teacher file contract); each
+    file is read once."""
     from scimm.teacher import load_teacher
-    episodes, sits = [], []
+    episodes, sits, fits = [], [], []
     for f in files:
         with np.load(f, allow_pickle=False) as a:
             ep = {"raw": {"path": a["path"], "speed": pathspeed.label_speeds(a["speed_wps"])},
                   "pose": np.stack([a["x"], a["y"], a["yaw"]], axis=-1)}
-        ep.update({m: load_teacher(data, m, f.stem) for m in methods})
+            ep.update({m: load_teacher(data, m, f.stem) for m in methods})
+            sits.append(situations(a))
+            fits.append({"path": a["path"], "speed_wps": a["speed_wps"], "mu": ep["scimm"]["mu"]})
         episodes.append(ep)
-        sits.append(situations(f))
     rows = ("raw", *methods)
     mus = {m: [ep[m]["mu"] for ep in episodes] for m in methods}
-    return table2(episodes, rows), mode_meaning(sits, mus)
+    return table2(episodes, rows), mode_meaning(sits, mus), fit_residuals(fits)

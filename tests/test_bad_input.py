@@ -173,8 +173,7 @@ def test_render_draws_the_waypoint_overlay_of_eval_runs(one_route_run, tmp_path)
     """SPEC §9: render makes a video or the Fig. 5 overlay (--runs); the overlay's bad inputs
     are one line and write nothing."""
     out = tmp_path / "fig5.png"
-    code, printed = _cli(["render", "--route", "0", "--runs", str(one_route_run), str(one_route_run),
-                          "--out", str(out)])
+    code, printed = _cli(["render", "--route", "0", "--runs", str(one_route_run), "--out", str(out)])
     assert code == 0 and out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n", printed
     for argv, words in ((["--route", "1", "--runs", str(one_route_run), "--out", str(tmp_path / "b.png")],
                          ["no log of route 1"]),

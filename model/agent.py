@@ -6,21 +6,20 @@ waypoints (10, 2) out, through SimLingo's controller (controller.simlingo) to a 
 run_step returns ``(Control, Prediction)`` so the harness logs the waypoints for the
 stability metrics and ``render``. The mode head is not used at inference.
 
-Torch runs on one thread per process (eval workers are processes, one per core). The
-network runs as a TorchScript trace at batch 1 (``traced``): the same ATen kernels in the
-same order as the eager module, so the same outputs bit for bit (tests/test_model.py), at
-about 0.9 instead of 1.3 ms per frame, the Python module overhead gone.
+The network runs in ONNX Runtime on one thread per process (model.runtime: exported from
+the checkpoint's torch module when the agent is set up; eval workers are processes, one
+per core): about 0.26 instead of 0.8 ms a frame in torch, outputs equal to the torch
+module's to rounding (a few 1e-6 m).
 
 A tick whose network inputs (binarised BEV, target point and speed as float32) equal the
 previous tick's bit for bit gets the previous tick's outputs without running the network
-again: a standing ego in a still scene. The traced network is a pure function of its
-inputs (same inputs, same outputs: tests/test_student_controller.py), so records do not
-change; on ``town12_short`` 19 % of the shipped student's ticks repeat (docs/scale.md).
+again: a standing ego in a still scene. The network is a pure function of its inputs
+(same inputs, same outputs: tests/test_student_controller.py), so records do not change;
+on ``town12_short`` 7 % of the shipped student's ticks repeat (docs/scale.md).
 """
 from __future__ import annotations
 
 import functools
-import warnings
 from pathlib import Path
 
 import numpy as np
@@ -31,40 +30,18 @@ from controller.vehicle import Control
 from harness.agent import AutonomousAgent, Prediction
 from model.cache import binarize
 from model.checkpoint import load_checkpoint, resolve
+from model.runtime import OnnxNetwork
 
 INFERENCE_THREADS = 1
 
 
-class _Outputs(torch.nn.Module):
-    """The student with a tuple output (path, speed waypoints), as tracing needs."""
-
-    def __init__(self, model: torch.nn.Module):
-        super().__init__()
-        self.model = model
-
-    def forward(self, bev: torch.Tensor, target_point: torch.Tensor, speed: torch.Tensor):
-        out = self.model(bev, target_point, speed)
-        return out["path"], out["speed_wps"]
-
-
-def traced(model: torch.nn.Module) -> torch.jit.ScriptModule:
-    """``model`` (eval mode) traced at batch 1: called with (bev (1, 9, 64, 64) float,
-    target point (1, 2) [m], speed (1,) [m/s]) it returns (path (1, 20, 2), speed waypoints
-    (1, 10, 2)) [m], ego frame. The network has no data-dependent control flow, so the trace
-    is exact. torch 2.13 marks ``torch.jit.trace`` deprecated (it still works; torch is pinned)."""
-    example = (torch.zeros(1, 9, 64, 64), torch.zeros(1, 2), torch.zeros(1))
-    with warnings.catch_warnings(), torch.inference_mode():
-        warnings.simplefilter("ignore", DeprecationWarning)
-        return torch.jit.trace(_Outputs(model.eval()), example, check_trace=False)
-
-
 @functools.lru_cache(maxsize=4)
-def _loaded(key: tuple[str, int, int]) -> tuple[torch.nn.Module, dict, torch.jit.ScriptModule]:
-    """The checkpoint at key[0] (key: path, mtime [ns], size), loaded and traced once per
-    process: an eval worker sets up a new agent for every route, and every trace adds
+def _loaded(key: tuple[str, int, int]) -> tuple[torch.nn.Module, dict, OnnxNetwork]:
+    """The checkpoint at key[0] (key: path, mtime [ns], size), loaded and exported once per
+    process: an eval worker sets up a new agent for every route, and every export adds
     TorchScript types that are never freed (about 5 MB of worker memory per route)."""
     model, manifest = load_checkpoint(key[0])
-    return model, manifest, traced(model)
+    return model, manifest, OnnxNetwork(model)
 
 
 class StudentAgent(AutonomousAgent):
@@ -83,9 +60,9 @@ class StudentAgent(AutonomousAgent):
         self._forget()
 
     def use(self, model: torch.nn.Module) -> None:
-        """Drive with ``model`` (put in eval mode and traced for speed)."""
+        """Drive with ``model`` (put in eval mode and exported to ONNX Runtime)."""
         self.model = model.eval()
-        self.network = traced(self.model)
+        self.network = OnnxNetwork(self.model)
         self._forget()
 
     def _forget(self) -> None:
@@ -115,15 +92,10 @@ class StudentAgent(AutonomousAgent):
             last = self._last = (x, tp, sp, *self.infer(x, tp, sp))
         return last[3].copy(), last[4].copy()
 
-    @torch.inference_mode()
     def infer(self, x: np.ndarray, target_point: np.ndarray, speed: float) -> tuple[np.ndarray, np.ndarray]:
         """One network call: x the binarised BEV (9, 64, 64) (bool or {0, 1}), target point (2,)
         [m] and speed [m/s] -> (path (20, 2), speed waypoints (10, 2)) [m], ego frame."""
-        xt = torch.from_numpy(x[None].astype(np.float32))  # (1, 9, 64, 64)
-        tp = torch.as_tensor(np.asarray(target_point, dtype=np.float32)[None])  # (1, 2)
-        sp = torch.full((1,), float(speed), dtype=torch.float32)  # (1,)
-        path, speed_wps = self.network(xt, tp, sp)
-        return path[0].numpy().astype(float), speed_wps[0].numpy().astype(float)
+        return self.network(x, target_point, speed)
 
     def run_step(self, input_data: dict, timestamp: float) -> tuple[Control, Prediction]:
         speed = float(input_data["speed"])

@@ -70,8 +70,9 @@ def _reproduce_figure(folder: str) -> dict:
 
 def machine() -> dict:
     """What the figures were measured on: CPU model, cores, the kernels torch picked, and the
-    versions that set the per-tick cost. Figures of two runs compare only on the same kind of
-    machine (and a student's records only on the same CPU type: docs/reliability.md)."""
+    versions that set the per-tick cost (torch trains the student, ONNX Runtime runs it in
+    the closed loop). Figures of two runs compare only on the same kind of machine (and a
+    student's records only on the same CPU type: docs/reliability.md)."""
     import importlib.metadata
     import os
     import platform
@@ -85,6 +86,7 @@ def machine() -> dict:
         pass
     return {"cpu": cpu, "cores": os.cpu_count(), "torch": torch.__version__,
             "torch_cpu_capability": torch.backends.cpu.get_cpu_capability(),
+            "onnxruntime": importlib.metadata.version("onnxruntime"),  # the student's runtime (model.runtime)
             "libsumo": importlib.metadata.version("libsumo"), "numpy": importlib.metadata.version("numpy"),
             "python": platform.python_version()}
 
@@ -142,7 +144,7 @@ def _bench(args: argparse.Namespace) -> int:
     reproduce = _reproduce_figure(args.reproduce) if args.reproduce else None
     m = machine()
     print(f"machine: {m['cpu']}, {m['cores']} cores; torch {m['torch']} ({m['torch_cpu_capability']} kernels), "
-          f"libsumo {m['libsumo']}, numpy {m['numpy']}, Python {m['python']}")
+          f"onnxruntime {m['onnxruntime']}, libsumo {m['libsumo']}, numpy {m['numpy']}, Python {m['python']}")
     infer_ms, network_between = _bare_inference(args.agent, args.agent_config)
     try:
         loop = run_bench(args.routes, args.routes_count, agent=args.agent, agent_config=args.agent_config,

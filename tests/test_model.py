@@ -239,20 +239,33 @@ def test_a_model_checkpoint_round_trips(tmp_path):
     assert load_checkpoint(tmp_path)[1] == manifest  # a training --out folder works too
 
 
-def test_the_agent_traced_network_gives_the_eager_outputs_bit_for_bit():
-    from model.agent import traced
+def test_the_agent_onnx_network_gives_the_eager_outputs_to_rounding():
+    """ONNX Runtime computes the torch module's function in float32 with other kernels
+    (fused, reassociated sums), so outputs may differ by rounding only. Outputs reach about
+    12 m here, where one float32 ulp is 9.5e-7 m; over 200 such inputs, for this fresh network
+    and for the shipped SC-IMM student, the largest difference was 2.9e-6 m (3 ulps, after
+    the cumulative sum of 20 rounded increments). 2e-5 m (20 ulps) leaves room for other
+    CPUs' kernels, while any graph error (a wrong op, a dropped bias, swapped axes) moves
+    the outputs by centimetres or more."""
+    from model.runtime import OnnxNetwork
     torch.manual_seed(0)
     m = Student(NetConfig()).eval()
-    net = traced(m)
+    net = OnnxNetwork(m)
     g = torch.Generator().manual_seed(1)
+    worst = 0.0
     with torch.inference_mode():
         for _ in range(20):
             x = (torch.rand(1, 9, 64, 64, generator=g) > 0.8).float(), torch.randn(1, 2, generator=g) * 10, \
                 torch.rand(1, generator=g) * 10
-            path, speed_wps = net(*x)
+            path, speed_wps = net(x[0][0].numpy(), x[1][0].numpy(), float(x[2][0]))
             eager = m(*x)
-            torch.testing.assert_close(path, eager["path"], rtol=0, atol=0)
-            torch.testing.assert_close(speed_wps, eager["speed_wps"], rtol=0, atol=0)
+            assert path.shape == (20, 2) and speed_wps.shape == (10, 2)
+            np.testing.assert_allclose(path, eager["path"][0].double().numpy(), rtol=0, atol=2e-5)
+            np.testing.assert_allclose(speed_wps, eager["speed_wps"][0].double().numpy(), rtol=0, atol=2e-5)
+            worst = max(worst, float(np.abs(eager["path"][0].numpy()).max()))
+            again = net(x[0][0].numpy(), x[1][0].numpy(), float(x[2][0]))
+            np.testing.assert_array_equal(again[0], path)  # deterministic: same inputs, same outputs
+    assert worst > 5.0  # the comparison is not between near-zero outputs
 
 
 class _RunsCode:

@@ -8,14 +8,15 @@ stability metrics and ``render``. The mode head is not used at inference.
 
 The network runs in ONNX Runtime on one thread per process (model.runtime: exported from
 the checkpoint's torch module when the agent is set up; eval workers are processes, one
-per core): about 0.26 instead of 0.8 ms a frame in torch, outputs equal to the torch
+per core): about 0.3 instead of 0.8 ms a frame in torch, outputs equal to the torch
 module's to rounding (a few 1e-6 m).
 
 A tick whose network inputs (binarised BEV, target point and speed as float32) equal the
 previous tick's bit for bit gets the previous tick's outputs without running the network
 again: a standing ego in a still scene. The network is a pure function of its inputs
 (same inputs, same outputs: tests/test_student_controller.py), so records do not change;
-on ``town12_short`` 7 % of the shipped student's ticks repeat (docs/scale.md).
+7 % of the shipped student's ticks repeat on routes 1 and 3-7 of ``town12_short``, 18 % on
+``town12_smoke`` (docs/scale.md, session 14).
 """
 from __future__ import annotations
 
@@ -30,16 +31,15 @@ from controller.vehicle import Control
 from harness.agent import AutonomousAgent, Prediction
 from model.cache import binarize
 from model.checkpoint import load_checkpoint, resolve
-from model.runtime import OnnxNetwork
-
-INFERENCE_THREADS = 1
+from model.runtime import INFERENCE_THREADS, OnnxNetwork
 
 
 @functools.lru_cache(maxsize=4)
 def _loaded(key: tuple[str, int, int]) -> tuple[torch.nn.Module, dict, OnnxNetwork]:
     """The checkpoint at key[0] (key: path, mtime [ns], size), loaded and exported once per
-    process: an eval worker sets up a new agent for every route, and every export adds
-    TorchScript types that are never freed (about 5 MB of worker memory per route)."""
+    process: an eval worker sets up a new agent for every route, and every export (a trace
+    underneath) keeps memory that is never freed (about 0.45 MB per export, measured; the
+    TorchScript trace before session 14 kept about 5 MB)."""
     model, manifest = load_checkpoint(key[0])
     return model, manifest, OnnxNetwork(model)
 

@@ -106,7 +106,7 @@ def _bare_inference(agent_name: str, agent_config: str | None):
         return None, None
 
     def network_between(inputs: list[dict]):
-        agent.setup(agent_config)  # the checkpoint, torch on INFERENCE_THREADS threads
+        agent.setup(agent_config)  # the checkpoint, in ONNX Runtime on INFERENCE_THREADS threads
         frames = [(binarize(d["bev"]), d["target_point"], float(d["speed"])) for d in inputs]
         calls = itertools.count()
 

@@ -38,8 +38,8 @@ from model.runtime import INFERENCE_THREADS, OnnxNetwork
 def _loaded(key: tuple[str, int, int]) -> tuple[torch.nn.Module, dict, OnnxNetwork]:
     """The checkpoint at key[0] (key: path, mtime [ns], size), loaded and exported once per
     process: an eval worker sets up a new agent for every route, and every export (a trace
-    underneath) keeps memory that is never freed (about 0.45 MB per export, measured; the
-    TorchScript trace before session 14 kept about 5 MB)."""
+    underneath) keeps memory that is never freed (0.16-0.45 MB per export, measured with and
+    without handing freed memory back; the TorchScript trace before session 14 kept about 5 MB)."""
     model, manifest = load_checkpoint(key[0])
     return model, manifest, OnnxNetwork(model)
 

@@ -21,6 +21,10 @@ measured in the same run (SPEC §11). Never a timed test: numbers to read, not t
   partly from the network's own use of them (docs/scale.md, session 11). This figure is
   the SUMO cost any closed loop with this network pays here; the overhead ratio over it
   shows what the harness's own work adds;
+- the floor (a learned agent, for reading): in that replay the network calls are timed
+  too. SUMO's step plus the network on the agent's share of ticks is what a closed loop
+  costs whose own work (sensor inputs, BEV, controller, criteria, log) were free; over the
+  overhead ratio's reference it is the lowest ratio a harness could reach here;
 - BEV render: one 64 x 64 x 9 frame, averaged over many frames of real snapshots;
 - collect: simulated seconds per wall second of one worker recording the expert (issue
   #5's ">= 20"): ``run_job`` as ``sumo-scimm collect`` runs it, episode file and log saved.
@@ -50,12 +54,13 @@ SAMPLE_EVERY = 50  # ticks between the frames kept for the BEV and inference fig
 
 
 def _bare_step_ms(route: Route, seed: int, log: EpisodeLog,
-                  between: Callable[[], object] | None = None) -> tuple[float, bool]:
+                  between: Callable[[], object] | None = None) -> tuple[float, bool, float]:
     """(per-tick cost [ms] of SUMO and its traffic alone, replaying the ego of a harness
-    log; whether the replay reproduced the episode's traffic).
+    log; whether the replay reproduced the episode's traffic; per-call cost [ms] of
+    ``between``, nan without it).
 
-    ``between()``, if given, runs before every step, untimed (the agent's network: what
-    sits between two steps in a closed loop)."""
+    ``between()``, if given, runs before every step, timed apart from it (the agent's
+    network: what sits between two steps in a closed loop)."""
     net = load_net(route.town)
     plan = build_plan(route, net)
     ss = np.random.SeedSequence(seed)  # the generators and SUMO seed of run_episode
@@ -66,17 +71,20 @@ def _bare_step_ms(route: Route, seed: int, log: EpisodeLog,
         scene.start(EgoState(*plan.path.pose(0.0), 0.0))
         xs, ys, yaws, vs, bg = (log.columns[c] for c in ("x", "y", "yaw", "v", "bg_speed"))
         progress = [0] + log.columns["route_index"][:-1]  # the route index each tick started from
-        busy, same = 0.0, True
+        busy, between_busy, same = 0.0, 0.0, True
         for k in range(len(xs)):
             s, ego_s = EgoState(xs[k], ys[k], yaws[k], vs[k]), float(plan.s[progress[k]])
             if between is not None:
+                t0 = time.perf_counter()
                 between()
+                between_busy += time.perf_counter() - t0
             t0 = time.perf_counter()
             scene.advance(s, ego_s)
             busy += time.perf_counter() - t0
             now = world.snapshot().background_speed
             same = same and (now == bg[k] or (math.isnan(now) and math.isnan(bg[k])))
-        return 1000 * busy / max(len(xs), 1), same
+        ticks = max(len(xs), 1)
+        return 1000 * busy / ticks, same, 1000 * between_busy / ticks if between is not None else math.nan
     finally:
         world.close()
 
@@ -102,7 +110,8 @@ def run_bench(routes_name: str = "town12_smoke", n_routes: int = 4, bev_frames: 
     The figures are means over the routes; ``per_route`` keeps each route's."""
     _, routes = read_routes(resolve_set(routes_name))
     routes = routes[:n_routes]
-    harness_ms, bare_ms, same, snaps, shares, infer_ms, between_ms = [], [], [], [], [], [], []
+    harness_ms, bare_ms, same, snaps, shares, infer_ms = [], [], [], [], [], []
+    between_ms, between_net_ms = [], []  # the replay with the network between steps: SUMO, network
     for k, route in enumerate(routes):
         seed = route_seed(0, k)
         kept, driver = [], {}
@@ -120,7 +129,7 @@ def run_bench(routes_name: str = "town12_smoke", n_routes: int = 4, bev_frames: 
         a = driver.get("agent")
         if getattr(a, "frames", 0):  # a student: the ticks that ran its network
             shares.append(a.network_calls / a.frames)
-        ms, ok = _bare_step_ms(route, seed, res.log)
+        ms, ok, _ = _bare_step_ms(route, seed, res.log)
         bare_ms.append(ms)
         same.append(ok)
         bev = BevRenderer.for_town(route.town)
@@ -134,8 +143,9 @@ def run_bench(routes_name: str = "town12_smoke", n_routes: int = 4, bev_frames: 
         if bare_inference is not None and inputs:  # right after the episode, as the libsumo replay
             infer_ms.append(bare_inference(inputs))
         if network_between is not None and inputs:
-            ms, ok = _bare_step_ms(route, seed, res.log, between=network_between(inputs))
+            ms, ok, net_ms = _bare_step_ms(route, seed, res.log, between=network_between(inputs))
             between_ms.append(ms)
+            between_net_ms.append(net_ms)
             same.append(ok)
     renderer = BevRenderer.for_town(routes[0].town)
     t0 = time.perf_counter()
@@ -161,6 +171,13 @@ def run_bench(routes_name: str = "town12_smoke", n_routes: int = 4, bev_frames: 
             out["bare_libsumo_network_between_ms"] = round(bn, 3)
             out["per_route"]["bare_libsumo_network_between_ms"] = [round(v, 3) for v in between_ms]
             out["harness_over_network_between_plus_inference"] = round(h / (bn + share * out["bare_inference_ms"]), 2)
+            # the floor: a loop that only steps SUMO and runs the network (on the same share of
+            # ticks as the agent), its own work nil, over the same reference as the harness step
+            nn = float(np.mean(between_net_ms))
+            out["network_between_call_ms"] = round(nn, 3)
+            out["per_route"]["network_between_call_ms"] = [round(v, 3) for v in between_net_ms]
+            out["sumo_and_network_alternating_ms"] = round(bn + share * nn, 3)
+            out["floor_over_bare_plus_inference"] = round((bn + share * nn) / (b + share * out["bare_inference_ms"]), 2)
     return out
 
 

@@ -166,6 +166,9 @@ def _bench(args: argparse.Namespace) -> int:
         print(f"  for reading: bare libsumo step with the network run between steps "
               f"{loop['bare_libsumo_network_between_ms']:.3f} ms/tick; harness / (that + inference) "
               f"{loop['harness_over_network_between_plus_inference']:.2f} x (docs/scale.md)")
+        print(f"  for reading: SUMO and the network alternating, nothing else "
+              f"{loop['sumo_and_network_alternating_ms']:.3f} ms/tick (network {loop['network_between_call_ms']:.2f} ms "
+              f"a call); over (bare + inference) {loop['floor_over_bare_plus_inference']:.2f} x: the floor of the ratio")
     c = r["collect"]
     print(f"collect (expert, 4 Hz episode files), one worker on {c['collect_routes']}: "
           f"{c['collect_sim_s_per_wall_s']:.1f} simulated s per wall s (target >= {c['collect_target']:g})")

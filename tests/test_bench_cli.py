@@ -35,12 +35,18 @@ def test_bench_prints_and_writes_every_figure_beside_its_reference(tmp_path, cap
     assert math.isfinite(between) and between > 0
     ratio = loop["harness_step_ms"] / (between + loop["network_share"] * loop["bare_inference_ms"])
     assert abs(loop["harness_over_network_between_plus_inference"] - ratio) <= 0.005 * ratio + 0.005
+    # the floor: SUMO and the network alternating (the network on the agent's share of
+    # ticks), over the same reference, from the same rounded figures (tolerance as above)
+    floor = between + loop["network_share"] * loop["network_between_call_ms"]
+    assert loop["network_between_call_ms"] > 0 and abs(loop["sumo_and_network_alternating_ms"] - floor) <= 0.002
+    ratio = floor / (loop["bare_libsumo_step_ms"] + loop["network_share"] * loop["bare_inference_ms"])
+    assert abs(loop["floor_over_bare_plus_inference"] - ratio) <= 0.005 * ratio + 0.005
     # the references are timed route by route, right after each episode; the figures are the routes' means
     per = loop["per_route"]
     assert (len(per["harness_step_ms"]) == len(per["bare_libsumo_step_ms"]) == len(per["bare_inference_ms"])
             == len(per["bare_libsumo_network_between_ms"]) == 1)
     assert abs(loop["bare_inference_ms"] - per["bare_inference_ms"][0]) <= 0.001
-    for line in ("harness / (bare + inference)", "with the network run between steps", "BEV render", "collect (expert", "IMM", "filterpy",
+    for line in ("harness / (bare + inference)", "with the network run between steps", "the floor of the ratio", "BEV render", "collect (expert", "IMM", "filterpy",
                  "student training", "student inference"):
         assert line in printed
     assert "eval" not in r  # the whole town12_short evaluation only with --eval

@@ -18,7 +18,12 @@ def test_the_replay_reproduces_the_episode_traffic_and_tells_another_seed_apart(
     res = run_episode(route, "route_follower", None, seed)
     bg = res.log.columns["bg_speed"]
     assert sum(not math.isnan(v) for v in bg) > len(bg) // 2  # the check has speeds to compare
-    ms, same = _bare_step_ms(route, seed, res.log)
-    assert same and ms > 0.0
-    _, same_other = _bare_step_ms(route, seed + 1, res.log)  # another seed: other traffic
+    ms, same, between_ms = _bare_step_ms(route, seed, res.log)
+    assert same and ms > 0.0 and math.isnan(between_ms)  # nothing ran between the steps
+    _, same_other, _ = _bare_step_ms(route, seed + 1, res.log)  # another seed: other traffic
     assert not same_other
+    # with a call between steps: its own time is returned per tick, apart from SUMO's, and
+    # the traffic is still the episode's (the call cannot reach SUMO)
+    calls = []
+    ms, same, between_ms = _bare_step_ms(route, seed, res.log, between=lambda: calls.append(sum(range(2000))))
+    assert same and ms > 0.0 and between_ms > 0.0 and len(calls) == len(bg)

@@ -8,8 +8,9 @@ Outputs in the run folder:
                     run, and its resident memory after this one [MB] (the soak figure)
     logs/<route>_rep<k>.npz   the per-tick event log of that run (harness.episode.EpisodeLog)
 
-    run.json        what the run is (every route run's key, seed, route, agent, agent
-                    config, rules, step deadline), written when it starts
+    run.json        what the run is (the software, harness.provenance; every route run's
+                    key, seed, route, agent, agent config and its digest, rules, step
+                    deadline), written when it starts
 
 Every route run gets its own seed, derived from the run seed, the route's place in its set
 and the repetition (harness.cli), so records do not depend on the number of workers or the
@@ -17,8 +18,8 @@ backend. A worker that dies (kill -9, segfault) has its route recorded as "Faile
 Simulation crashed" with the reason; a new worker takes over and the run goes on.
 ``resume`` keeps the complete records already in ``records.jsonl`` and runs only the rest
 (a torn last line is dropped and redone); it refuses (BadInput) a folder whose run.json
-differs from the resumed run's, or whose records are not route runs of it, so a run's
-scores never mix records of two runs.
+differs from the resumed run's (other options, another checkpoint, other software), or
+whose records are not route runs of it, so a run's scores never mix records of two runs.
 
 Backends: ``local`` (spawned worker processes, each running routes one after another) and
 ``ray`` (harness.ray_backend: each route a Ray task in a fresh process); both stream the
@@ -28,7 +29,6 @@ from __future__ import annotations
 
 import ctypes
 import ctypes.util
-import hashlib
 import json
 import multiprocessing as mp
 import os
@@ -44,8 +44,8 @@ from tqdm import tqdm
 from harness import criteria
 from harness.atomic import savez_atomic, signals_held, write_atomic
 from harness.episode import AGENT_TIMEOUT
-from harness.errors import BadInput
 from harness.infractions import KEYS
+from harness.provenance import check_same_run, run_identity
 from harness.scoring import outside_lanes, route_record
 from scenarios.routefile import Route
 
@@ -218,53 +218,6 @@ def read_records(path: Path) -> list[dict]:
     return out
 
 
-def run_identity(jobs: list[Job]) -> dict:
-    """What makes the records of ``jobs`` what they are, per route run key: the seed, the
-    route (a hash of its parsed definition), the agent and its config (an absolute path),
-    the rules, the step deadline and whether it records a dataset. Workers, backend and
-    the results file do not change records and are not in it."""
-    return {j.key: {"seed": j.seed, "route": hashlib.sha256(repr(j.route).encode()).hexdigest()[:16],
-                    "agent": j.agent, "agent_config": os.path.abspath(j.agent_config) if j.agent_config else None,
-                    "rules": j.rules, "agent_timeout": j.agent_timeout, "collect": bool(j.collect_dir)}
-            for j in jobs}
-
-
-def _check_same_run(out: Path, identity: dict, done: list[dict]) -> None:
-    """BadInput unless the run being resumed in ``out`` is the one described by ``identity``
-    (its run.json; a folder from before run.json: every record is one of its route runs with
-    its seed)."""
-    fix = "resume with the options the run was started with, or choose another --out"
-    path = out / "run.json"
-    if path.exists():
-        try:
-            old = json.loads(path.read_text())
-        except (json.JSONDecodeError, UnicodeDecodeError):
-            raise BadInput(f"{path} is not JSON: {fix}") from None
-        if old != identity:
-            raise BadInput(f"{out} holds another run ({_first_difference(old, identity)}): {fix}")
-        return
-    for rec in done:
-        job = identity.get(rec["key"])
-        if job is None or job["seed"] != rec.get("seed"):
-            what = "is not a route run of this run" if job is None else f"has seed {rec.get('seed')}, not {job['seed']}"
-            raise BadInput(f"{out}: record {rec['key']} {what}: {fix}")
-
-
-def _first_difference(old: dict, new: dict) -> str:
-    """One phrase naming how run identity ``new`` differs from ``old`` (both non-equal)."""
-    if not isinstance(old, dict) or set(old) != set(new):
-        only = sorted(set(new) - set(old if isinstance(old, dict) else {}))
-        return f"route runs differ{': ' + ', '.join(only[:3]) + ' not in it' if only else ''}"
-    for key in new:
-        was, now = old[key], new[key]
-        if was != now:
-            if not isinstance(was, dict):
-                return f"{key} differs"
-            f = next(f for f in (*now, *was) if was.get(f) != now.get(f))
-            return f"{key}: {f} {now.get(f)!r}, the run has {was.get(f)!r}"
-    return "it differs"
-
-
 def _keep_complete_lines(path: Path, resume: bool) -> list[dict]:
     """Start a JSON-lines file afresh, or (resume) keep its complete lines; replaced
     atomically, so nothing is lost meanwhile, and appends start on a fresh line."""
@@ -349,9 +302,12 @@ def run_eval(jobs: list[Job], out: Path, workers: int | None, resume: bool, show
             Path(d).mkdir(parents=True, exist_ok=True)
         rec_path, workers_path = out / "records.jsonl", out / "workers.jsonl"
         identity = run_identity(jobs)
+        kept = read_records(rec_path) if resume else []
+        adding = not resume or bool({j.key for j in jobs} - {r["key"] for r in kept})
         if resume:
-            _check_same_run(out, identity, read_records(rec_path))
-        write_atomic(out / "run.json", json.dumps(identity, indent=1) + "\n")
+            check_same_run(out, identity, kept, adding)
+        if adding:  # a finished run scored again keeps the run.json of the software that made it
+            write_atomic(out / "run.json", json.dumps(identity, indent=1) + "\n")
         done = _keep_complete_lines(rec_path, resume)
         _keep_complete_lines(workers_path, resume)
         have = {r["key"] for r in done}

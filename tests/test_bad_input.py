@@ -74,10 +74,97 @@ def test_resume_of_a_folder_from_before_run_json_checks_its_records(one_route_ru
     (out / "run.json").unlink()
     code, printed = _cli([*SMOKE_ROUTE, "--seed", "3", "--out", str(out), "--resume"])
     _one_line_exit_2(code, printed, "record 0_rep0 has seed")
-    # the same options: nothing left to run, the scores are printed again and run.json written
+    # the same options: nothing left to run, the scores are printed again; no run.json is
+    # written, as it would name software that made none of the records
     code, printed = _cli([*SMOKE_ROUTE, "--out", str(out), "--resume"])
     assert code == 0 and "1 routes ->" in printed, printed
-    assert json.loads((out / "run.json").read_text()) == json.loads((one_route_run / "run.json").read_text())
+    assert not (out / "run.json").exists()
+    # with a route left to run: refused, the records' software is unknown
+    code, printed = _cli([*SMOKE_ROUTE[:4], "0-1", *SMOKE_ROUTE[5:], "--out", str(out), "--resume"])
+    _one_line_exit_2(code, printed, "did not record its software", "start the run afresh")
+
+
+@pytest.fixture(scope="module")
+def half_run(tmp_path_factory) -> Path:
+    """A run of two routes stopped after the first: one record, one route left."""
+    out = tmp_path_factory.mktemp("half") / "run"
+    code, printed = _cli([*SMOKE_ROUTE[:4], "0-1", *SMOKE_ROUTE[5:], "--out", str(out)])
+    assert code == 0, printed
+    rec = out / "records.jsonl"
+    rec.write_text(rec.read_text().splitlines(keepends=True)[0])
+    return out
+
+
+def _with_software(src: Path, dst: Path, entry: str, value: str) -> dict:
+    """A copy of run folder src whose run.json names another ``entry`` of the software."""
+    shutil.copytree(src, dst)
+    identity = json.loads((dst / "run.json").read_text())
+    assert identity["software"][entry] not in (None, value)  # recorded when the run started
+    identity["software"][entry] = value
+    (dst / "run.json").write_text(json.dumps(identity))
+    return identity
+
+
+@pytest.mark.parametrize("entry, value, words", [
+    ("onnxruntime", "1.0.0", ["onnxruntime 1.32.0, the run has 1.0.0"]),
+    ("libsumo", "1.20.0", ["libsumo 1.28.0, the run has 1.20.0"]),
+    ("code", "0123456789abcdef", ["code ", "the run has 0123456789abcdef"]),
+])
+def test_resume_refuses_a_folder_started_with_other_software(half_run, tmp_path, entry, value, words):
+    """Another commit or library gives other trajectories (docs/reliability.md): a run
+    resumed with it would mix two versions of the experiment in one score."""
+    out = tmp_path / "run"
+    _with_software(half_run, out, entry, value)
+    before = _tree(out)
+    code, printed = _cli([*SMOKE_ROUTE[:4], "0-1", *SMOKE_ROUTE[5:], "--out", str(out), "--resume"])
+    _one_line_exit_2(code, printed, "was started with other software", *words, "another --out")
+    assert _tree(out) == before
+
+
+def test_a_finished_run_is_scored_again_by_other_software_and_keeps_its_run_json(one_route_run, tmp_path):
+    """Nothing is added to a finished run, so nothing mixes: it is scored again, and its
+    run.json keeps naming the software that made its records."""
+    out = tmp_path / "run"
+    identity = _with_software(one_route_run, out, "code", "0123456789abcdef")
+    code, printed = _cli([*SMOKE_ROUTE, "--out", str(out), "--resume"])
+    assert code == 0 and "1 routes ->" in printed, printed
+    assert json.loads((out / "run.json").read_text()) == identity
+
+
+def test_resume_refuses_a_run_json_that_does_not_name_its_software(half_run, one_route_run, tmp_path):
+    """run.json before session 15: the route runs alone, at the top level. With a route left
+    to run: refused; finished: scored again, its options still checked."""
+    for src, name in ((half_run, "half"), (one_route_run, "done")):
+        out = tmp_path / name
+        shutil.copytree(src, out)
+        identity = json.loads((out / "run.json").read_text())
+        old = {k: {f: v for f, v in r.items() if f != "agent_config_digest"} for k, r in identity["route_runs"].items()}
+        (out / "run.json").write_text(json.dumps(old))
+    before = _tree(tmp_path / "half")
+    code, printed = _cli([*SMOKE_ROUTE[:4], "0-1", *SMOKE_ROUTE[5:], "--out", str(tmp_path / "half"), "--resume"])
+    _one_line_exit_2(code, printed, "did not record its software", "start the run afresh")
+    assert _tree(tmp_path / "half") == before
+    code, printed = _cli([*SMOKE_ROUTE, "--out", str(tmp_path / "done"), "--resume"])
+    assert code == 0 and "1 routes ->" in printed, printed
+    code, printed = _cli([*SMOKE_ROUTE, "--seed", "3", "--out", str(tmp_path / "done"), "--resume"])
+    _one_line_exit_2(code, printed, "holds another run", "seed")
+
+
+def test_resume_refuses_a_checkpoint_that_changed_under_the_same_path(tmp_path):
+    """A student retrained into the same file drives otherwise: its records are another run's."""
+    from model.agent import SHIPPED
+    ckpt = tmp_path / "student.pt"
+    shutil.copyfile(SHIPPED / "scimm" / "student.pt", ckpt)
+    argv = ["eval", "--routes", "town12_smoke", "--routes-subset", "0", "--agent", "student",
+            "--agent-config", str(ckpt), "--workers", "1"]
+    out = tmp_path / "run"
+    code, printed = _cli([*argv, "--out", str(out)])
+    assert code == 0, printed
+    shutil.copyfile(SHIPPED / "fixed" / "student.pt", ckpt)  # another student, same path
+    before = _tree(out)
+    code, printed = _cli([*argv, "--out", str(out), "--resume"])
+    _one_line_exit_2(code, printed, "holds another run", "agent_config_digest", "resume with the options")
+    assert _tree(out) == before
 
 
 def test_score_refuses_more_records_than_planned_routes(one_route_run, tmp_path):

@@ -1,0 +1,166 @@
+"""What besides a run's options decides its records: the software (docs/reliability.md).
+
+``software()`` names the code of the stages (a digest of their Python sources, route sets,
+nets and shipped checkpoints) and the versions of the libraries that run inside the closed
+loop. ``run.json`` keeps it beside the route runs, and ``--resume`` refuses a folder started
+with other software (harness.runner), so the records of one run never mix two versions of
+the experiment: a new commit, another libsumo or another ONNX Runtime gives other
+trajectories (session 14 measured it for the runtime).
+
+Left out on purpose: the CPU type (records depend on it too, but a Ray run spans machines;
+a run finished on another CPU type is another sample of the experiment, compared by its
+means), and the libraries outside the loop (pandas, tqdm, matplotlib)."""
+from __future__ import annotations
+
+import hashlib
+import importlib.metadata
+import importlib.util
+import json
+import os
+from functools import lru_cache
+from pathlib import Path
+
+from harness.errors import BadInput
+
+# the stages (SPEC §1) and the files in them that can change a record
+PACKAGES = ("scenarios", "sumo_nets", "controller", "harness", "scimm", "model")
+SUFFIXES = (".py", ".xml", ".pt")
+# the distributions whose code runs inside the loop, the scoring or the student's export
+LIBRARIES = ("libsumo", "numpy", "scipy", "opencv-python-headless", "torch", "onnxruntime", "onnx")
+
+
+def _package_dir(name: str) -> Path:
+    spec = importlib.util.find_spec(name)  # found, not imported: model would pull torch
+    if spec is None or not spec.submodule_search_locations:
+        raise RuntimeError(f"package {name} not found: reinstall sumo-scimm (make setup)")
+    return Path(next(iter(spec.submodule_search_locations)))
+
+
+def code_digest() -> str:
+    """sha256 (first 16 hex digits) over the relative path and bytes of every source, route
+    set, net and checkpoint file of the stages, in path order."""
+    h = hashlib.sha256()
+    for name in PACKAGES:
+        root = _package_dir(name)
+        files = sorted(p for p in root.rglob("*") if p.suffix in SUFFIXES and "__pycache__" not in p.parts)
+        for p in files:
+            h.update(f"{name}/{p.relative_to(root).as_posix()}\0".encode())
+            h.update(p.read_bytes())
+            h.update(b"\0")
+    return h.hexdigest()[:16]
+
+
+@lru_cache(maxsize=1)
+def software() -> dict:
+    """{"code": digest, <library>: version, ...}: computed once per process."""
+    out = {"code": code_digest()}
+    for lib in LIBRARIES:
+        try:
+            out[lib] = importlib.metadata.version(lib)
+        except importlib.metadata.PackageNotFoundError:
+            out[lib] = None
+    return out
+
+
+def config_digest(path: str) -> str | None:
+    """sha256 (first 16 hex digits) of an agent's config: a file's bytes, or a folder's files
+    (names and bytes, not recursing; a ``train --out`` folder); None if unreadable (the agent
+    check reports that). Read once per process while the files' sizes and times stay."""
+    p = Path(path)
+    try:
+        files = sorted(f for f in p.iterdir() if f.is_file()) if p.is_dir() else [p]
+        stamp = tuple((f.name, f.stat().st_mtime_ns, f.stat().st_size) for f in files)
+    except OSError:
+        return None
+    return _digest(str(p), stamp)
+
+
+@lru_cache(maxsize=16)
+def _digest(path: str, stamp: tuple) -> str | None:
+    h = hashlib.sha256()
+    try:
+        for name, _, _ in stamp:
+            f = Path(path) / name if Path(path).is_dir() else Path(path)
+            h.update(f"{name}\0".encode())
+            h.update(f.read_bytes())
+            h.update(b"\0")
+    except OSError:
+        return None
+    return h.hexdigest()[:16]
+
+
+def run_identity(jobs) -> dict:
+    """What makes the records of ``jobs`` (harness.runner.Job) what they are: the software,
+    and per route run key the seed, the route (a hash of its parsed definition), the agent,
+    its config (an absolute path) and the config's digest, the rules, the step deadline and
+    whether it records a dataset. Workers, backend and the results file do not change
+    records and are not in it."""
+    def config(path):
+        return os.path.abspath(path) if path else None
+    return {"software": software(),
+            "route_runs": {j.key: {"seed": j.seed, "route": hashlib.sha256(repr(j.route).encode()).hexdigest()[:16],
+                                   "agent": j.agent, "agent_config": config(j.agent_config),
+                                   "agent_config_digest": config_digest(config(j.agent_config)) if j.agent_config else None,
+                                   "rules": j.rules, "agent_timeout": j.agent_timeout, "collect": bool(j.collect_dir)}
+                           for j in jobs}}
+
+
+def check_same_run(out: Path, identity: dict, done: list[dict], adding: bool) -> None:
+    """BadInput unless the run being resumed in ``out`` is the one described by ``identity``:
+    the same route runs (its run.json; a folder from before run.json: every record one of
+    them, with its seed) and, if it holds records and route runs are left (``adding``), the
+    same software. A finished run may be scored again by other software (no record is added
+    to it), and a run without a record yet may start again with it (none would mix)."""
+    fix = "resume with the options the run was started with, or choose another --out"
+    unknown = (f"{out} was started by a sumo-scimm that did not record its software, so its records may "
+               "come from other code: start the run afresh in another --out")
+    mixing = adding and bool(done)
+    path = out / "run.json"
+    if not path.exists():
+        if mixing:
+            raise BadInput(unknown)
+        for rec in done:
+            job = identity["route_runs"].get(rec["key"])
+            if job is None or job["seed"] != rec.get("seed"):
+                what = "is not a route run of this run" if job is None else f"has seed {rec.get('seed')}, not {job['seed']}"
+                raise BadInput(f"{out}: record {rec['key']} {what}: {fix}")
+        return
+    try:
+        old = json.loads(path.read_text())
+    except (json.JSONDecodeError, UnicodeDecodeError):
+        raise BadInput(f"{path} is not JSON: {fix}") from None
+    new_runs = identity["route_runs"]
+    if isinstance(old, dict) and "software" in old:
+        if mixing and old["software"] != identity["software"]:
+            raise BadInput(f"{out} was started with other software ({_difference(old['software'], identity['software'])}); "
+                           "its records would mix two versions: resume with the software it was started with, "
+                           "or start the run afresh in another --out")
+        old_runs = old.get("route_runs")
+    else:  # a run.json from before session 15: the route runs alone, without their configs' digests
+        if mixing:
+            raise BadInput(unknown)
+        old_runs = old
+        new_runs = {k: {f: v for f, v in r.items() if f != "agent_config_digest"} for k, r in new_runs.items()}
+    if old_runs != new_runs:
+        raise BadInput(f"{out} holds another run ({_first_difference(old_runs, new_runs)}): {fix}")
+
+
+def _difference(was: dict, now: dict) -> str:
+    """'<name> <now>, the run has <was>' for the first software entry that differs."""
+    name = next(k for k in (*now, *was) if now.get(k) != was.get(k))
+    return f"{name} {now.get(name)}, the run has {was.get(name)}"
+
+
+def _first_difference(old: dict, new: dict) -> str:
+    """One phrase naming how route runs ``new`` differ from ``old`` (both non-equal)."""
+    if not isinstance(old, dict) or set(old) != set(new):
+        only = sorted(set(new) - set(old if isinstance(old, dict) else {}))
+        return f"route runs differ{': ' + ', '.join(only[:3]) + ' not in it' if only else ''}"
+    for key in new:
+        was, now = old[key], new[key]
+        if was != now:
+            if not isinstance(was, dict):
+                return f"{key} differs"
+            f = next(f for f in (*now, *was) if was.get(f) != now.get(f))
+            return f"{key}: {f} {now.get(f)!r}, the run has {was.get(f)!r}"
+    return "it differs"

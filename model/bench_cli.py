@@ -4,8 +4,8 @@ measured in the same run, printed as a table and optionally written as JSON.
 - closed loop (``harness.bench``): harness step with the chosen agent against bare libsumo
   stepping of the same traffic with the ego replayed, plus, for a student, its bare
   inference (its own checkpoint's ``predict`` on inputs recorded in the same episodes, one
-  thread), and, for reading, the libsumo replay with that network run between steps; BEV
-  render;
+  thread), and, for reading, the libsumo replay with that network run between steps and
+  the ratio's floor (SUMO and the network alternating, nothing else); BEV render;
 - teacher (``scimm.bench``): batched IMM frames per second on one core against filterpy's
   IMMEstimator on the same sequences, and the largest difference between them;
 - student (``model.bench``): training samples per second on 2 threads, inference ms per

@@ -112,8 +112,9 @@ def check_same_run(out: Path, identity: dict, done: list[dict], adding: bool) ->
     same software. A finished run may be scored again by other software (no record is added
     to it), and a run without a record yet may start again with it (none would mix)."""
     fix = "resume with the options the run was started with, or choose another --out"
+    afresh = f"start the run afresh (remove {out}, or choose another --out)"
     unknown = (f"{out} was started by a sumo-scimm that did not record its software, so its records may "
-               "come from other code: start the run afresh in another --out")
+               f"come from other code: {afresh}")
     mixing = adding and bool(done)
     path = out / "run.json"
     if not path.exists():
@@ -133,8 +134,7 @@ def check_same_run(out: Path, identity: dict, done: list[dict], adding: bool) ->
     if isinstance(old, dict) and "software" in old:
         if mixing and old["software"] != identity["software"]:
             raise BadInput(f"{out} was started with other software ({_difference(old['software'], identity['software'])}); "
-                           "its records would mix two versions: resume with the software it was started with, "
-                           "or start the run afresh in another --out")
+                           f"its records would mix two versions: resume with the software it was started with, or {afresh}")
         old_runs = old.get("route_runs")
     else:  # a run.json from before session 15: the route runs alone, without their configs' digests
         if mixing:

@@ -24,7 +24,9 @@ measured in the same run (SPEC §11). Never a timed test: numbers to read, not t
 - the floor (a learned agent, for reading): in that replay the network calls are timed
   too. SUMO's step plus the network on the agent's share of ticks is what a closed loop
   costs whose own work (sensor inputs, BEV, controller, criteria, log) were free; over the
-  overhead ratio's reference it is the lowest ratio a harness could reach here;
+  overhead ratio's reference it is the lowest ratio a harness could reach here (the replay
+  runs the network before every step, the loop on its share of ticks, so SUMO's part of
+  the floor is for the network on every tick: the true floor may sit a little lower);
 - BEV render: one 64 x 64 x 9 frame, averaged over many frames of real snapshots;
 - collect: simulated seconds per wall second of one worker recording the expert (issue
   #5's ">= 20"): ``run_job`` as ``sumo-scimm collect`` runs it, episode file and log saved.

@@ -16,6 +16,7 @@ from harness.cli import main
 
 SMOKE_ROUTE = ["eval", "--routes", "town12_smoke", "--routes-subset", "0", "--agent", "route_follower",
                "--workers", "1"]
+SMOKE_TWO = [*SMOKE_ROUTE[:4], "0-1", *SMOKE_ROUTE[5:]]  # the same with routes 0 and 1
 
 
 def _cli(argv: list[str]) -> tuple[int, str]:
@@ -80,7 +81,7 @@ def test_resume_of_a_folder_from_before_run_json_checks_its_records(one_route_ru
     assert code == 0 and "1 routes ->" in printed, printed
     assert not (out / "run.json").exists()
     # with a route left to run: refused, the records' software is unknown
-    code, printed = _cli([*SMOKE_ROUTE[:4], "0-1", *SMOKE_ROUTE[5:], "--out", str(out), "--resume"])
+    code, printed = _cli([*SMOKE_TWO, "--out", str(out), "--resume"])
     _one_line_exit_2(code, printed, "did not record its software", "start the run afresh")
 
 
@@ -88,7 +89,7 @@ def test_resume_of_a_folder_from_before_run_json_checks_its_records(one_route_ru
 def half_run(tmp_path_factory) -> Path:
     """A run of two routes stopped after the first: one record, one route left."""
     out = tmp_path_factory.mktemp("half") / "run"
-    code, printed = _cli([*SMOKE_ROUTE[:4], "0-1", *SMOKE_ROUTE[5:], "--out", str(out)])
+    code, printed = _cli([*SMOKE_TWO, "--out", str(out)])
     assert code == 0, printed
     rec = out / "records.jsonl"
     rec.write_text(rec.read_text().splitlines(keepends=True)[0])
@@ -116,7 +117,7 @@ def test_resume_refuses_a_folder_started_with_other_software(half_run, tmp_path,
     out = tmp_path / "run"
     _with_software(half_run, out, entry, value)
     before = _tree(out)
-    code, printed = _cli([*SMOKE_ROUTE[:4], "0-1", *SMOKE_ROUTE[5:], "--out", str(out), "--resume"])
+    code, printed = _cli([*SMOKE_TWO, "--out", str(out), "--resume"])
     _one_line_exit_2(code, printed, "was started with other software", *words, "another --out")
     assert _tree(out) == before
 
@@ -131,6 +132,17 @@ def test_a_finished_run_is_scored_again_by_other_software_and_keeps_its_run_json
     assert json.loads((out / "run.json").read_text()) == identity
 
 
+def test_a_run_without_a_record_yet_starts_again_with_other_software(half_run, tmp_path):
+    """Stopped before its first route ended: no record would mix, so it runs, and its
+    run.json then names the software that made all of its records."""
+    out = tmp_path / "run"
+    _with_software(half_run, out, "code", "0123456789abcdef")
+    (out / "records.jsonl").write_text("")
+    code, printed = _cli([*SMOKE_TWO, "--out", str(out), "--resume"])
+    assert code == 0 and "2 routes ->" in printed, printed
+    assert json.loads((out / "run.json").read_text()) == json.loads((half_run / "run.json").read_text())
+
+
 def test_resume_refuses_a_run_json_that_does_not_name_its_software(half_run, one_route_run, tmp_path):
     """run.json before session 15: the route runs alone, at the top level. With a route left
     to run: refused; finished: scored again, its options still checked."""
@@ -141,7 +153,7 @@ def test_resume_refuses_a_run_json_that_does_not_name_its_software(half_run, one
         old = {k: {f: v for f, v in r.items() if f != "agent_config_digest"} for k, r in identity["route_runs"].items()}
         (out / "run.json").write_text(json.dumps(old))
     before = _tree(tmp_path / "half")
-    code, printed = _cli([*SMOKE_ROUTE[:4], "0-1", *SMOKE_ROUTE[5:], "--out", str(tmp_path / "half"), "--resume"])
+    code, printed = _cli([*SMOKE_TWO, "--out", str(tmp_path / "half"), "--resume"])
     _one_line_exit_2(code, printed, "did not record its software", "start the run afresh")
     assert _tree(tmp_path / "half") == before
     code, printed = _cli([*SMOKE_ROUTE, "--out", str(tmp_path / "done"), "--resume"])

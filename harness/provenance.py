@@ -1,15 +1,20 @@
 """What besides a run's options decides its records: the software (docs/reliability.md).
 
 ``software()`` names the code of the stages (a digest of their Python sources, route sets,
-nets and shipped checkpoints) and the versions of the libraries that run inside the closed
-loop. ``run.json`` keeps it beside the route runs, and ``--resume`` refuses a folder started
-with other software (harness.runner), so the records of one run never mix two versions of
-the experiment: a new commit, another libsumo or another ONNX Runtime gives other
-trajectories (session 14 measured it for the runtime).
+nets and shipped checkpoints), the Python version and the versions of the libraries that
+run inside the closed loop. ``run.json`` keeps it beside the route runs, with a digest of
+each agent's config file and, for an agent given as ``module:Class``, of its module file;
+``--resume`` refuses to add records to a folder started with other software (harness.runner),
+so the records of one run never mix two versions of the experiment: a new commit, another
+libsumo or another ONNX Runtime gives other trajectories (session 14 measured it for the
+runtime).
 
-Left out on purpose: the CPU type (records depend on it too, but a Ray run spans machines;
-a run finished on another CPU type is another sample of the experiment, compared by its
-means), and the libraries outside the loop (pandas, tqdm, matplotlib)."""
+Strict on purpose: any change to a ``.py`` file of the stages counts, even one that cannot
+change a record (a docstring, the bench). Left out: the CPU type (records depend on it too,
+but a Ray run spans machines; a run finished on another CPU type is another sample of the
+experiment, compared by its means); the software of Ray nodes other than the driver's (the
+driver's is recorded, the nodes are expected to run the same install); and the libraries
+outside the loop (pandas, tqdm, matplotlib)."""
 from __future__ import annotations
 
 import hashlib
@@ -17,6 +22,7 @@ import importlib.metadata
 import importlib.util
 import json
 import os
+import platform
 from functools import lru_cache
 from pathlib import Path
 
@@ -26,7 +32,7 @@ from harness.errors import BadInput
 PACKAGES = ("scenarios", "sumo_nets", "controller", "harness", "scimm", "model")
 SUFFIXES = (".py", ".xml", ".pt")
 # the distributions whose code runs inside the loop, the scoring or the student's export
-LIBRARIES = ("libsumo", "numpy", "scipy", "opencv-python-headless", "torch", "onnxruntime", "onnx")
+LIBRARIES = ("libsumo", "sumolib", "numpy", "scipy", "opencv-python-headless", "torch", "onnxruntime", "onnx")
 
 
 def _package_dir(name: str) -> Path:
@@ -42,7 +48,8 @@ def code_digest() -> str:
     h = hashlib.sha256()
     for name in PACKAGES:
         root = _package_dir(name)
-        files = sorted(p for p in root.rglob("*") if p.suffix in SUFFIXES and "__pycache__" not in p.parts)
+        files = sorted(p for p in root.rglob("*")
+                       if p.suffix in SUFFIXES and "__pycache__" not in p.parts and p.is_file())
         for p in files:
             h.update(f"{name}/{p.relative_to(root).as_posix()}\0".encode())
             h.update(p.read_bytes())
@@ -52,8 +59,8 @@ def code_digest() -> str:
 
 @lru_cache(maxsize=1)
 def software() -> dict:
-    """{"code": digest, <library>: version, ...}: computed once per process."""
-    out = {"code": code_digest()}
+    """{"code": digest, "python": version, <library>: version, ...}: computed once per process."""
+    out = {"code": code_digest(), "python": platform.python_version()}
     for lib in LIBRARIES:
         try:
             out[lib] = importlib.metadata.version(lib)
@@ -63,46 +70,51 @@ def software() -> dict:
 
 
 def config_digest(path: str) -> str | None:
-    """sha256 (first 16 hex digits) of an agent's config: a file's bytes, or a folder's files
-    (names and bytes, not recursing; a ``train --out`` folder); None if unreadable (the agent
-    check reports that). Read once per process while the files' sizes and times stay."""
-    p = Path(path)
+    """sha256 (first 16 hex digits) of a file's bytes (an agent's checkpoint or module),
+    None if it cannot be read (the agent check reports that). Read once per process while
+    the file stays the same file, unchanged (inode, size, change times)."""
     try:
-        files = sorted(f for f in p.iterdir() if f.is_file()) if p.is_dir() else [p]
-        stamp = tuple((f.name, f.stat().st_mtime_ns, f.stat().st_size) for f in files)
+        st = os.stat(path)
+        return _digest(path, (st.st_ino, st.st_size, st.st_mtime_ns, st.st_ctime_ns))
     except OSError:
         return None
-    return _digest(str(p), stamp)
 
 
 @lru_cache(maxsize=16)
-def _digest(path: str, stamp: tuple) -> str | None:
-    h = hashlib.sha256()
-    try:
-        for name, _, _ in stamp:
-            f = Path(path) / name if Path(path).is_dir() else Path(path)
-            h.update(f"{name}\0".encode())
-            h.update(f.read_bytes())
-            h.update(b"\0")
-    except OSError:
+def _digest(path: str, stamp: tuple) -> str:
+    return hashlib.sha256(Path(path).read_bytes()).hexdigest()[:16]  # an OSError is not cached
+
+
+def _agent_module(agent: str) -> str | None:
+    """The file of a ``module:Class`` agent's module (outside the stages' digest), else None."""
+    if ":" not in agent:
         return None
-    return h.hexdigest()[:16]
+    try:
+        spec = importlib.util.find_spec(agent.partition(":")[0])
+    except (ImportError, ValueError):
+        return None
+    return spec.origin if spec is not None and spec.origin and os.path.isfile(spec.origin) else None
 
 
 def run_identity(jobs) -> dict:
     """What makes the records of ``jobs`` (harness.runner.Job) what they are: the software,
-    and per route run key the seed, the route (a hash of its parsed definition), the agent,
-    its config (an absolute path) and the config's digest, the rules, the step deadline and
-    whether it records a dataset. Workers, backend and the results file do not change
-    records and are not in it."""
+    and per route run key the seed, the route (a hash of its parsed definition), the agent
+    (and, for ``module:Class``, its module file's digest), its config (an absolute path) and
+    the config's digest, the rules, the step deadline and whether it records a dataset.
+    Workers, backend and the results file do not change records and are not in it."""
     def config(path):
         return os.path.abspath(path) if path else None
-    return {"software": software(),
-            "route_runs": {j.key: {"seed": j.seed, "route": hashlib.sha256(repr(j.route).encode()).hexdigest()[:16],
-                                   "agent": j.agent, "agent_config": config(j.agent_config),
-                                   "agent_config_digest": config_digest(config(j.agent_config)) if j.agent_config else None,
-                                   "rules": j.rules, "agent_timeout": j.agent_timeout, "collect": bool(j.collect_dir)}
-                           for j in jobs}}
+    runs = {}
+    for j in jobs:
+        run = {"seed": j.seed, "route": hashlib.sha256(repr(j.route).encode()).hexdigest()[:16],
+               "agent": j.agent, "agent_config": config(j.agent_config),
+               "agent_config_digest": config_digest(config(j.agent_config)) if j.agent_config else None,
+               "rules": j.rules, "agent_timeout": j.agent_timeout, "collect": bool(j.collect_dir)}
+        module = _agent_module(j.agent)
+        if module:
+            run["agent_module_digest"] = config_digest(module)
+        runs[j.key] = run
+    return {"software": software(), "route_runs": runs}
 
 
 def check_same_run(out: Path, identity: dict, done: list[dict], adding: bool) -> None:
@@ -128,10 +140,12 @@ def check_same_run(out: Path, identity: dict, done: list[dict], adding: bool) ->
         return
     try:
         old = json.loads(path.read_text())
-    except (json.JSONDecodeError, UnicodeDecodeError):
-        raise BadInput(f"{path} is not JSON: {fix}") from None
+    except (json.JSONDecodeError, UnicodeDecodeError, OSError):
+        raise BadInput(f"{path} is not a JSON file: {fix}") from None
     new_runs = identity["route_runs"]
     if isinstance(old, dict) and "software" in old:
+        if not isinstance(old["software"], dict):
+            raise BadInput(f"{path} is damaged (its software entry is not a table): {afresh}")
         if mixing and old["software"] != identity["software"]:
             raise BadInput(f"{out} was started with other software ({_difference(old['software'], identity['software'])}); "
                            f"its records would mix two versions: resume with the software it was started with, or {afresh}")
@@ -140,9 +154,11 @@ def check_same_run(out: Path, identity: dict, done: list[dict], adding: bool) ->
         if mixing:
             raise BadInput(unknown)
         old_runs = old
-        new_runs = {k: {f: v for f, v in r.items() if f != "agent_config_digest"} for k, r in new_runs.items()}
+        new_runs = {k: {f: v for f, v in r.items() if not f.endswith("_digest")} for k, r in new_runs.items()}
     if old_runs != new_runs:
-        raise BadInput(f"{out} holds another run ({_first_difference(old_runs, new_runs)}): {fix}")
+        other = (f", or the same run described by other software ({_difference(old['software'], identity['software'])})"
+                 if isinstance(old, dict) and old.get("software", identity["software"]) != identity["software"] else "")
+        raise BadInput(f"{out} holds another run ({_first_difference(old_runs, new_runs)}){other}: {fix}")
 
 
 def _difference(was: dict, now: dict) -> str:

@@ -10,7 +10,8 @@ Outputs in the run folder:
 
     run.json        what the run is (the software, harness.provenance; every route run's
                     key, seed, route, agent, agent config and its digest, rules, step
-                    deadline), written when it starts
+                    deadline), written when it starts (a finished run scored again by
+                    ``resume`` keeps the one it has)
 
 Every route run gets its own seed, derived from the run seed, the route's place in its set
 and the repetition (harness.cli), so records do not depend on the number of workers or the
@@ -18,8 +19,9 @@ backend. A worker that dies (kill -9, segfault) has its route recorded as "Faile
 Simulation crashed" with the reason; a new worker takes over and the run goes on.
 ``resume`` keeps the complete records already in ``records.jsonl`` and runs only the rest
 (a torn last line is dropped and redone); it refuses (BadInput) a folder whose run.json
-differs from the resumed run's (other options, another checkpoint, other software), or
-whose records are not route runs of it, so a run's scores never mix records of two runs.
+differs from the resumed run's (other options, another checkpoint; other software when
+records would be added), or whose records are not route runs of it, so a run's scores
+never mix records of two runs.
 
 Backends: ``local`` (spawned worker processes, each running routes one after another) and
 ``ray`` (harness.ray_backend: each route a Ray task in a fresh process); both stream the
@@ -289,6 +291,11 @@ def run_eval(jobs: list[Job], out: Path, workers: int | None, resume: bool, show
     results.json (rewritten); at the end also summary.csv. ``workers`` None: every core
     (local) or every CPU of the Ray cluster."""
     from harness.outputs import write_outputs
+    identity = run_identity(jobs)
+    kept = read_records(out / "records.jsonl") if resume else []
+    adding = not resume or bool({j.key for j in jobs} - {r["key"] for r in kept})
+    if resume:  # before Ray starts: a refused resume starts nothing
+        check_same_run(out, identity, kept, adding)
     pool = None
     if backend == "ray":  # connect first: a cluster that cannot be reached leaves no file behind
         from harness.ray_backend import RayPool
@@ -301,11 +308,6 @@ def run_eval(jobs: list[Job], out: Path, workers: int | None, resume: bool, show
         for d in dirs or {str(out / "logs")}:
             Path(d).mkdir(parents=True, exist_ok=True)
         rec_path, workers_path = out / "records.jsonl", out / "workers.jsonl"
-        identity = run_identity(jobs)
-        kept = read_records(rec_path) if resume else []
-        adding = not resume or bool({j.key for j in jobs} - {r["key"] for r in kept})
-        if resume:
-            check_same_run(out, identity, kept, adding)
         if adding:  # a finished run scored again keeps the run.json of the software that made it
             write_atomic(out / "run.json", json.dumps(identity, indent=1) + "\n")
         done = _keep_complete_lines(rec_path, resume)

@@ -141,6 +141,16 @@ def test_a_run_without_a_record_yet_starts_again_with_other_software(half_run, t
     code, printed = _cli([*SMOKE_TWO, "--out", str(out), "--resume"])
     assert code == 0 and "2 routes ->" in printed, printed
     assert json.loads((out / "run.json").read_text()) == json.loads((half_run / "run.json").read_text())
+    # the same for a run.json from before session 15 (no software named)
+    old = tmp_path / "old"
+    shutil.copytree(half_run, old)
+    runs = json.loads((old / "run.json").read_text())["route_runs"]
+    (old / "run.json").write_text(json.dumps({k: {f: v for f, v in r.items() if not f.endswith("_digest")}
+                                              for k, r in runs.items()}))
+    (old / "records.jsonl").write_text("")
+    code, printed = _cli([*SMOKE_TWO, "--out", str(old), "--resume"])
+    assert code == 0 and "2 routes ->" in printed, printed
+    assert json.loads((old / "run.json").read_text()) == json.loads((half_run / "run.json").read_text())
 
 
 def test_resume_refuses_a_run_json_that_does_not_name_its_software(half_run, one_route_run, tmp_path):
@@ -150,7 +160,7 @@ def test_resume_refuses_a_run_json_that_does_not_name_its_software(half_run, one
         out = tmp_path / name
         shutil.copytree(src, out)
         identity = json.loads((out / "run.json").read_text())
-        old = {k: {f: v for f, v in r.items() if f != "agent_config_digest"} for k, r in identity["route_runs"].items()}
+        old = {k: {f: v for f, v in r.items() if not f.endswith("_digest")} for k, r in identity["route_runs"].items()}
         (out / "run.json").write_text(json.dumps(old))
     before = _tree(tmp_path / "half")
     code, printed = _cli([*SMOKE_TWO, "--out", str(tmp_path / "half"), "--resume"])
@@ -160,6 +170,21 @@ def test_resume_refuses_a_run_json_that_does_not_name_its_software(half_run, one
     assert code == 0 and "1 routes ->" in printed, printed
     code, printed = _cli([*SMOKE_ROUTE, "--seed", "3", "--out", str(tmp_path / "done"), "--resume"])
     _one_line_exit_2(code, printed, "holds another run", "seed")
+
+
+@pytest.mark.parametrize("damage, words", [
+    (lambda p: p.write_text(json.dumps({"software": "x", "route_runs": {}})), ["is damaged", "software entry"]),
+    (lambda p: p.write_text(json.dumps({"software": None, "route_runs": {}})), ["is damaged", "software entry"]),
+    (lambda p: (p.unlink(), p.mkdir()), ["is not a JSON file"]),
+])
+def test_resume_of_a_damaged_run_json_is_one_line(half_run, tmp_path, damage, words):
+    out = tmp_path / "run"
+    shutil.copytree(half_run, out)
+    damage(out / "run.json")
+    before = _tree(out)
+    code, printed = _cli([*SMOKE_TWO, "--out", str(out), "--resume"])
+    _one_line_exit_2(code, printed, *words)
+    assert _tree(out) == before
 
 
 def test_resume_refuses_a_checkpoint_that_changed_under_the_same_path(tmp_path):

@@ -1,5 +1,6 @@
-"""The software a run records (harness.provenance): the code digest covers the files that
-can change a record and nothing else; library versions are the installed ones."""
+"""The software a run records (harness.provenance): the code digest covers the stages' files
+that can change a record, wherever they are installed; the versions are the installed ones;
+agents' checkpoints and modules are identified by their bytes."""
 from __future__ import annotations
 
 import importlib.metadata
@@ -32,21 +33,53 @@ def test_the_code_digest_follows_sources_nets_and_checkpoints_only(tmp_path, mon
     assert provenance.code_digest() != before
 
 
-def test_software_names_the_installed_libraries_and_this_code():
+def test_the_code_digest_does_not_depend_on_where_the_stages_are_installed(tmp_path, monkeypatch):
+    trees = {}
+    for where in ("clone_a", "elsewhere/clone_b"):
+        roots = {name: tmp_path / where / name for name in provenance.PACKAGES}
+        for name, root in roots.items():
+            (root / "nets").mkdir(parents=True)
+            (root / "a.py").write_text(f"NAME = {name!r}\n")
+            (root / "nets" / "t.net.xml").write_text("<net/>")
+        trees[where] = roots
+    digests = []
+    for roots in trees.values():
+        monkeypatch.setattr(provenance, "_package_dir", lambda name, roots=roots: roots[name])
+        digests.append(provenance.code_digest())
+    assert digests[0] == digests[1]
+
+
+def test_software_names_the_python_and_the_pinned_libraries():
     sw = provenance.software()
-    assert sw["code"] == provenance.code_digest()  # the real stages, found without importing them
-    for lib in provenance.LIBRARIES:
-        assert sw[lib] == importlib.metadata.version(lib)
-    assert sw["libsumo"] == "1.28.0" and sw["onnxruntime"] == "1.32.0"  # the pins of pyproject.toml
+    assert re.fullmatch(r"[0-9a-f]{16}", sw["code"]) and sw["python"].count(".") == 2
+    assert set(provenance.LIBRARIES) <= set(sw) and all(sw[lib] for lib in provenance.LIBRARIES)
+    # the pins of pyproject.toml (libsumo and sumolib with eclipse-sumo, the runtime)
+    assert sw["libsumo"] == sw["sumolib"] == "1.28.0" and sw["onnxruntime"] == "1.32.0"
 
 
-def test_a_config_digest_is_of_the_bytes_and_of_a_folders_files(tmp_path):
-    f = tmp_path / "student.pt"
+def test_a_config_digest_is_of_the_bytes_and_follows_a_rewrite(tmp_path):
+    f, g = tmp_path / "student.pt", tmp_path / "other_name.pt"
     f.write_bytes(b"one")
+    g.write_bytes(b"one")
     one = provenance.config_digest(str(f))
-    f.write_bytes(b"two!")  # read again: its size changed (and its time, on most file systems)
-    assert provenance.config_digest(str(f)) != one
-    folder_digest = provenance.config_digest(str(tmp_path))
-    (tmp_path / "manifest.json").write_text("{}")
-    assert provenance.config_digest(str(tmp_path)) != folder_digest
+    assert one == provenance.config_digest(str(g))  # the bytes, not the name
+    f.write_bytes(b"two")  # same size: read again all the same (another change time)
+    assert provenance.config_digest(str(f)) not in (one, None)
     assert provenance.config_digest(str(tmp_path / "missing.pt")) is None
+
+
+def test_a_module_agent_is_identified_by_its_module_file(tmp_path, monkeypatch):
+    """An agent given as module:Class lives outside the stages: its file's digest is part
+    of each route run, so editing it is another run."""
+    from harness.runner import Job
+    from scenarios import set_path
+    from scenarios.routefile import read_routes
+    (tmp_path / "my_agent.py").write_text("class A: pass\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    route = read_routes(set_path("town12_smoke"))[1][0]
+    job = Job(0, route, 0, "my_agent:A", None, 1, str(tmp_path))
+    before = provenance.run_identity([job])["route_runs"][job.key]["agent_module_digest"]
+    (tmp_path / "my_agent.py").write_text("class A:\n    speed = 2\n")
+    after = provenance.run_identity([job])["route_runs"][job.key]["agent_module_digest"]
+    assert before and after and before != after
+    assert "agent_module_digest" not in provenance.run_identity([Job(0, route, 0, "expert", None, 1, "")])["route_runs"][job.key]

@@ -3,7 +3,6 @@ that can change a record, wherever they are installed; the versions are the inst
 agents' checkpoints and modules are identified by their bytes."""
 from __future__ import annotations
 
-import importlib.metadata
 import re
 
 from harness import provenance

@@ -1,5 +1,5 @@
 """The CLI turns NumPy's transparent huge pages off before NumPy loads (docs/teacher.md: the
-IMM runs faster and steadier without them here), and keeps a value the user set."""
+IMM runs faster without them here), and keeps a value the user set."""
 from __future__ import annotations
 
 import os

@@ -57,9 +57,11 @@ class LateralPID:
         the lookahead arc length (the last point if the path is shorter).
         """
         pts = np.asarray(path_ego, dtype=float)
-        seg = np.hypot(*np.diff(np.vstack([[0.0, 0.0], pts]), axis=0).T)
-        cum = np.cumsum(seg)
-        k = int(np.searchsorted(cum, self.lookahead(speed)))
+        d = pts.copy()  # segment vectors from the ego origin on: d[0] = pts[0] - (0, 0)
+        d[1:] -= pts[:-1]
+        cum = np.hypot(d[:, 0], d[:, 1])
+        cum.cumsum(out=cum)  # arc length at each point [m]
+        k = int(cum.searchsorted(self.lookahead(speed)))
         tx, ty = pts[min(k, len(pts) - 1)]
         angle_left = math.atan2(ty, tx)  # CCW angle to the target in the ego frame
         error = -math.degrees(angle_left) / 90.0  # positive = target to the right

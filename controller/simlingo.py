@@ -40,7 +40,7 @@ def resample_path(path: np.ndarray, step: float = PATH_STEP) -> np.ndarray:
     d = pts[1:] - pts[:-1]
     cum = np.empty(len(pts))  # arc length at each point [m]
     cum[0] = 0.0
-    np.cumsum(np.hypot(d[:, 0], d[:, 1]), out=cum[1:])
+    np.hypot(d[:, 0], d[:, 1]).cumsum(out=cum[1:])
     if cum[-1] < step:
         return pts[-1:]
     s = np.arange(step, cum[-1] + 1e-9, step)

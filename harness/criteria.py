@@ -34,16 +34,23 @@ class RouteCompletion:
 
     def __init__(self, plan: GlobalPlan):
         self.plan, self.progress = plan, Progress(plan, window=3)
-        self.rc = 0.0
+        self.rc, self._length = 0.0, plan.length
 
     def update(self, x: float, y: float) -> str | None:
         i = self.progress.update(x, y)
-        self.rc = round(100.0 * self.plan.s[i] / self.plan.length, 2)
+        self.rc = _round2(100.0 * float(self.plan.s[i]) / self._length)
         end = self.plan.xy[-1]
         if self.rc > self.DONE_RC and np.hypot(x - end[0], y - end[1]) < self.DONE_DIST:
             self.rc = 100.0
             return COMPLETED
         return None
+
+
+def _round2(v: float) -> float:
+    """v rounded to 2 decimals as NumPy rounds a float64 (times 100, to the nearest integer,
+    ties to even, divided by 100), which is how RC was rounded when it was a NumPy scalar;
+    Python's ``round(v, 2)`` rounds the decimal value and can differ in the last digit."""
+    return round(v * 100.0) / 100.0
 
 
 class InRoute:
@@ -54,12 +61,12 @@ class InRoute:
 
     def __init__(self, plan: GlobalPlan):
         self.plan, self.index, self.out = plan, 0, 0.0
+        self._x, self._y = plan.xy[:, 0].copy(), plan.xy[:, 1].copy()  # contiguous columns
 
     def update(self, x: float, y: float) -> str | None:
         i = self.index
-        pts = self.plan.xy[i:i + self.WINDOW]
-        d = np.hypot(pts[:, 0] - x, pts[:, 1] - y)
-        k = int(np.flatnonzero(d == d.min())[-1])  # ties go to the later point
+        d = np.hypot(self._x[i:i + self.WINDOW] - x, self._y[i:i + self.WINDOW] - y).tolist()
+        k = len(d) - 1 - d[::-1].index(min(d))  # the nearest point; ties go to the later one
         if d[k] >= self.MAX_DIST:
             return FAILED_DEVIATION
         if k > 0:

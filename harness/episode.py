@@ -154,6 +154,7 @@ def run_episode(route: Route, agent_name: str, agent_config: str | None, seed: i
         hazards, props = scene.hazards, scene.props
         prop_boxes = np.array(props, dtype=float).reshape(-1, 5)  # (P, 5) x, y, yaw, length, width
         end = None
+        alarm = _deadline_alarm()
         loop0 = wallclock.perf_counter()
         lights_now = world.light_states(lights)
         while end is None:
@@ -162,7 +163,7 @@ def run_episode(route: Route, agent_name: str, agent_config: str | None, seed: i
             try:
                 inputs = sensor_inputs(specs, s, plan, progress, snap, (snap, lights_now, props),
                                  lambda: bev.render(s, snap, plan, lights_now, props))
-                out = _step_with_deadline(agent, inputs, world.time, agent_timeout)
+                out = _step_with_deadline(agent, inputs, world.time, agent_timeout, alarm)
                 control, pred = split_output(out)
                 if not control.is_finite():
                     raise ValueError(f"non-finite control {control}")
@@ -175,9 +176,10 @@ def run_episode(route: Route, agent_name: str, agent_config: str | None, seed: i
             snap = world.snapshot()
             lights_now = world.light_states(lights)  # the state the next tick sees
             tick += 1
+            # Blocked reads ``paused`` only below its speed: the hazards are asked only then
+            paused = s.v < criteria.Blocked.SPEED and any(h.timeout_active(ego_s, world.time) for h in hazards)
             end = (done.update(s.x, s.y) or in_route.update(s.x, s.y)
-                   or blocked.update(s.v, world.time, paused=any(h.timeout_active(ego_s, world.time)
-                                                                 for h in hazards))
+                   or blocked.update(s.v, world.time, paused=paused)
                    or timeout.update(s.x, s.y, world.time))
             _log_tick(log, tick, world.time, s, control, pred, done, snap, lights_now, prop_boxes)
             if on_frame is not None:
@@ -282,19 +284,28 @@ def _on_alarm(signum, frame) -> None:
         raise _timeout_error(_armed_timeout)
 
 
-def _step_with_deadline(agent, inputs: dict, timestamp: float, timeout: float):
+def _deadline_alarm() -> bool:
+    """Whether a SIGALRM timer can interrupt ``run_step`` here (the main thread, a platform
+    with ``setitimer``); if so, installs the handler, once per route before its first step
+    (reading the handler back every step cost 1-2 % of a tick: ``signal.getsignal``
+    builds an enum). An agent that installs its own SIGALRM handler loses the
+    interruption, not the deadline: the duration is checked when the step returns."""
+    if threading.current_thread() is not threading.main_thread() or not hasattr(signal, "setitimer"):
+        return False
+    signal.signal(signal.SIGALRM, _on_alarm)
+    return True
+
+
+def _step_with_deadline(agent, inputs: dict, timestamp: float, timeout: float, alarm: bool):
     """``agent.run_step(inputs, timestamp)``, ended after ``timeout`` s of wall time.
 
-    In the main thread a SIGALRM timer interrupts the agent, as the Leaderboard's watchdog
-    interrupts its main thread (a sleeping or looping agent stops there; one inside a long
-    C call, when it returns). Elsewhere, or if the agent swallowed the interruption, the
-    step's duration is checked when it returns."""
+    With ``alarm`` (``_deadline_alarm()``) a SIGALRM timer interrupts the agent, as the
+    Leaderboard's watchdog interrupts its main thread (a sleeping or looping agent stops
+    there; one inside a long C call, when it returns). Without it, or if the agent
+    swallowed the interruption, the step's duration is checked when it returns."""
     global _armed_timeout
-    alarm = threading.current_thread() is threading.main_thread() and hasattr(signal, "setitimer")
     t0 = wallclock.perf_counter()
     if alarm:
-        if signal.getsignal(signal.SIGALRM) is not _on_alarm:
-            signal.signal(signal.SIGALRM, _on_alarm)
         _armed_timeout = timeout
         signal.setitimer(signal.ITIMER_REAL, timeout)
     try:

@@ -47,11 +47,16 @@ class GlobalPlan:
         """Target point (2,) world [m]: the first sparse point >= TARGET_MIN past dense index
         ``progress``; near the end, the point TARGET_MIN ahead on the straight run-on past
         the last point (``shown_xy``), so the target never comes closer than TARGET_MIN."""
-        ahead = self.sparse[self.s[self.sparse] >= self.s[progress] + TARGET_MIN]
-        if len(ahead):
-            return self.xy[int(ahead[0])]
+        j = int(self._sparse_s.searchsorted(self.s[progress] + TARGET_MIN))  # s is non-decreasing
+        if j < len(self.sparse):
+            return self.xy[int(self.sparse[j])]
         extra = min(self.s[progress] + TARGET_MIN - self.length, END_PAD)
         return self.xy[-1] + extra * self._end_heading
+
+    @cached_property
+    def _sparse_s(self) -> np.ndarray:
+        """(K,) arc length of the sparse points [m]."""
+        return self.s[self.sparse]
 
     @cached_property
     def _end_heading(self) -> np.ndarray:
@@ -126,6 +131,9 @@ def _point_distance(shape: list, x: float, y: float) -> float:
 def to_ego(points: np.ndarray, x: float, y: float, yaw: float) -> np.ndarray:
     """World points (N, 2) -> ego frame (x forward, y left) of a pose (x, y, yaw)."""
     c, s = math.cos(yaw), math.sin(yaw)
+    if np.shape(points) == (2,):  # one point (the target point, every tick): the same arithmetic on floats
+        dx, dy = float(points[0]) - x, float(points[1]) - y
+        return np.array([c * dx + s * dy, -s * dx + c * dy])
     d = np.asarray(points, dtype=float) - (x, y)
     return np.stack([c * d[..., 0] + s * d[..., 1], -s * d[..., 0] + c * d[..., 1]], axis=-1)
 

@@ -15,6 +15,9 @@ measured in the same run, printed as a table and optionally written as JSON.
 - with ``--eval``: wall time of a whole ``town12_short`` evaluation on 2 workers with the
   agent, and the worker memory (RSS) over it.
 
+The closed-loop figures and the IMM's are the median of ``--rounds`` passes (fresh
+processes for the IMM), every pass printed and written beside it.
+
 The run prints and writes the machine it ran on (CPU model, cores, torch's kernels,
 versions). Figures are for reading, never asserted in a test; they depend on the machine
 and its load.
@@ -135,8 +138,8 @@ def _bench(args: argparse.Namespace) -> int:
     from harness.errors import BadInput
     from model.bench import format_student_bench, run_student_bench
     from scimm.bench import format_imm_bench, run_imm_bench
-    if args.routes_count < 1 or args.workers < 1:
-        raise BadInput("--routes-count and --workers must be >= 1")
+    if args.routes_count < 1 or args.workers < 1 or args.rounds < 1:
+        raise BadInput("--routes-count, --workers and --rounds must be >= 1")
     args.agent, args.agent_config = check_agent(args.agent, args.agent_config)
     if args.json and not Path(args.json).resolve().parent.is_dir():
         raise BadInput(f"--json {args.json!r}: no folder {Path(args.json).parent} to write it in")
@@ -149,12 +152,12 @@ def _bench(args: argparse.Namespace) -> int:
     infer_ms, network_between = _bare_inference(args.agent, args.agent_config)
     try:
         loop = run_bench(args.routes, args.routes_count, agent=args.agent, agent_config=args.agent_config,
-                         bare_inference=infer_ms, network_between=network_between)
+                         bare_inference=infer_ms, network_between=network_between, rounds=args.rounds)
     except BenchError as exc:  # the agent's setup failed: its config is the user's input
         raise BadInput(f"bench: {exc}") from None
     r: dict = {"machine": m, "closed_loop": loop}
     r["collect"] = collect_rate(args.routes, args.routes_count)
-    r["teacher"] = run_imm_bench()
+    r["teacher"] = run_imm_bench(repeats=args.rounds)
     r["student"] = run_student_bench()
     loop = r["closed_loop"]
     infer = loop.setdefault("bare_inference_ms", 0.0)  # 0 for a rule-based agent
@@ -163,6 +166,10 @@ def _bench(args: argparse.Namespace) -> int:
     print(format_bench(loop))
     print(f"  harness / (bare + inference) {loop['harness_over_bare_plus_inference']:.2f} x  "
           f"(inference {infer:.2f} ms, run on {share:.0%} of ticks; target <= {OVERHEAD_TARGET:g} x)")
+    if len(loop["rounds"]) > 1:
+        ratio = "harness_over_bare_plus_inference" if infer else "harness_over_bare"
+        print(f"  the median of {len(loop['rounds'])} rounds (round {loop['round_chosen'] + 1}); each round's ratio: "
+              + ", ".join(f"{x[ratio]:.2f}" for x in loop["rounds"]))
     if "bare_libsumo_network_between_ms" in loop:  # for reading: what SUMO costs with the network between steps
         print(f"  for reading: bare libsumo step with the network run between steps "
               f"{loop['bare_libsumo_network_between_ms']:.3f} ms/tick; harness / (that + inference) "
@@ -211,6 +218,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     bn.add_argument("--agent", default=DEFAULT_AGENT,
                     help=f"agent of the closed-loop figures (default {DEFAULT_AGENT}, the shipped SC-IMM student)")
     bn.add_argument("--agent-config", help="the agent's config (a student's checkpoint)")
+    bn.add_argument("--rounds", type=int, default=3,
+                    help="passes of the closed-loop figures and fresh processes of the IMM figure; the median "
+                         "is reported, every pass beside it (default 3)")
     bn.add_argument("--eval", action="store_true", help="also time a whole town12_short evaluation")
     bn.add_argument("--workers", type=int, default=2, help="workers of the --eval run (default 2)")
     bn.add_argument("--soak", type=int, default=0, metavar="N",

@@ -244,6 +244,8 @@ def test_bench_checks_its_agent_config_and_json_folder_before_running(tmp_path):
     _one_line_exit_2(code, printed, "does not exist")
     code, printed = _cli(["bench", "--json", str(tmp_path / "no" / "bench.json")])
     _one_line_exit_2(code, printed, "--json")
+    code, printed = _cli(["bench", "--rounds", "0"])
+    _one_line_exit_2(code, printed, "--rounds")
     assert not list(tmp_path.iterdir())
 
 

@@ -49,6 +49,17 @@ def test_bench_prints_and_writes_every_figure_beside_its_reference(tmp_path, cap
     assert (len(per["harness_step_ms"]) == len(per["bare_libsumo_step_ms"]) == len(per["bare_inference_ms"])
             == len(per["bare_libsumo_network_between_ms"]) == 1)
     assert abs(loop["bare_inference_ms"] - per["bare_inference_ms"][0]) <= 0.001
+    # --rounds (3 by default): the figures are those of the median round by the ratio, taken
+    # whole (its own figures, never mixed with another round's); every round is kept
+    rounds = loop["rounds"]
+    assert len(rounds) == 3
+    assert loop["harness_over_bare_plus_inference"] == sorted(x["harness_over_bare_plus_inference"] for x in rounds)[1]
+    chosen = rounds[loop["round_chosen"]]
+    assert chosen and all(chosen[k] == loop[k] for k in chosen)
+    # the IMM: the median of 3 fresh processes, all of them listed
+    runs = imm["imm_frames_per_s_runs"]
+    assert len(runs) == 3 and imm["imm_frames_per_s"] == sorted(runs)[1]
+    assert "the median of 3 rounds" in printed and "the median of 3 fresh processes" in printed
     for line in ("harness / (bare + inference)", "with the network run between steps", "the floor of the ratio", "BEV render", "collect (expert", "IMM", "filterpy",
                  "student training", "student inference"):
         assert line in printed
@@ -66,7 +77,7 @@ def test_bench_soak_and_reproduce_figures(tmp_path, capsys):
     (tmp_path / "rep").mkdir()
     (tmp_path / "rep" / "stages.json").write_text(json.dumps({"collect": 600.0, "train": 1200.5}))
     out = tmp_path / "bench.json"
-    argv = ["bench", "--routes-count", "1", "--agent", "route_follower", "--soak", "5", "--reproduce",
+    argv = ["bench", "--routes-count", "1", "--rounds", "1", "--agent", "route_follower", "--soak", "5", "--reproduce",
             str(tmp_path / "rep"), "--json", str(out)]
     assert main(argv) == 0
     printed = capsys.readouterr().out

@@ -51,11 +51,15 @@ class LateralPID:
         return min(max(LOOK_A * speed * 3.6 + LOOK_B, LOOK_MIN), LOOK_MAX) * 0.1
 
     def step(self, path_ego: np.ndarray, speed: float) -> float:
-        """Steer in [-1, 1] (positive = right) for a path in the ego frame (x fwd, y left) [m].
+        """Steer in [-1, 1] (positive = right) for a path in the ego frame (x fwd, y left) [m]:
+        ``steer_to`` the ``target`` point."""
+        return self.steer_to(*self.target(path_ego, speed))
 
-        path_ego: (N, 2) points from the ego onwards; the lookahead point is the point at
-        the lookahead arc length (the last point if the path is shorter).
-        """
+    def target(self, path_ego: np.ndarray, speed: float) -> tuple[float, float]:
+        """The lookahead point (x, y) [m] of a path (N, 2) of points from the ego onwards,
+        ego frame: the first point whose distance along the path, from the ego origin
+        through every point (the sum of the segment lengths), reaches the lookahead
+        distance at this speed; the last point if the path is shorter."""
         pts = np.asarray(path_ego, dtype=float)
         d = pts.copy()  # segment vectors from the ego origin on: d[0] = pts[0] - (0, 0)
         d[1:] -= pts[:-1]
@@ -63,6 +67,11 @@ class LateralPID:
         cum.cumsum(out=cum)  # arc length at each point [m]
         k = int(cum.searchsorted(self.lookahead(speed)))
         tx, ty = pts[min(k, len(pts) - 1)]
+        return float(tx), float(ty)
+
+    def steer_to(self, tx: float, ty: float) -> float:
+        """Steer in [-1, 1] (positive = right) towards the lookahead point (tx, ty) [m], ego
+        frame (x fwd, y left): the PID on its angle."""
         angle_left = math.atan2(ty, tx)  # CCW angle to the target in the ego frame
         error = -math.degrees(angle_left) / 90.0  # positive = target to the right
         derivative = error - self.errors[-1] if self.errors else 0.0

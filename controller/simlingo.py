@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from controller.lookahead import lookahead_point
 from controller.pid import LateralPID, SpeedPID
 from controller.vehicle import Control
 
@@ -67,7 +68,9 @@ class SimLingoController:
     def step(self, path: np.ndarray, speed_wps: np.ndarray, speed: float) -> Control:
         """Control for path (20, 2) and speed waypoints (10, 2) in the ego frame (x forward,
         y left) [m] at ego speed [m/s]."""
-        steer = round(self.lateral.step(resample_path(path), speed), 3)
+        # LateralPID.target(resample_path(path), speed), in one compiled pass (controller.lookahead)
+        tx, ty = lookahead_point(path, self.lateral.lookahead(speed), PATH_STEP)
+        steer = round(self.lateral.steer_to(tx, ty), 3)
         throttle, brake = self.longitudinal.step(desired_speed(speed_wps), speed)
         self.stuck = self.stuck + 1 if speed < STUCK_SPEED else 0
         if self.stuck > STUCK_TICKS:

@@ -30,6 +30,7 @@ from itertools import accumulate
 import cv2
 import numpy as np
 
+from harness.bev_pixels import boxes_to_pixels, points_to_pixels
 from harness.world import PEDESTRIAN, STATIC, VEHICLE
 from sumo_nets import load_net
 
@@ -129,8 +130,9 @@ class BevRenderer:
     def draw(self, ego, snap, plan, lights: list[int], props: list) -> np.ndarray:
         """(9, SIZE, SIZE) uint8 BEV around ego (x, y, yaw, world frame), drawn.
 
-        Every world point of the frame (route, stop lines, box corners) goes through one
-        ego-to-pixel transform, and each channel is drawn with one OpenCV call per group."""
+        The world points of the frame (route, stop lines) and the corners of its boxes become
+        pixels in compiled calls (harness.bev_pixels: one for the points, one per group of
+        boxes), and each channel is drawn with one OpenCV call per group."""
         c, s = math.cos(ego.yaw), math.sin(ego.yaw)
         # output pixel (u, v) -> world: ego + R(yaw) (fwd, left), fwd = (EGO_ROW - v) RES,
         # left = (SIZE/2 - u) RES; then world -> map pixel
@@ -153,11 +155,13 @@ class BevRenderer:
         if props:
             pa = np.array(props, dtype=float)
             groups.append((pa[:, :2], pa[:, 2], pa[:, 3:5], np.full(len(pa), STATIC)))
-        corners = [_corners(xy, yaw, size) for xy, yaw, size, _ in groups]  # (K, 4, 2) each
-        parts = [near, *stops[YELLOW], *stops[RED], *(cn.reshape(-1, 2) for cn in corners)]
-        all_px = _ego_pixels(ego)(np.concatenate(parts))
+        raster = (ego.x, ego.y, c, s, SIZE / 2, float(EGO_ROW), RES)  # the pixel transform
+        parts = [near, *stops[YELLOW], *stops[RED]]
+        all_px = points_to_pixels(np.concatenate(parts), *raster)
         ends = list(accumulate(len(p) for p in parts))
         px = [all_px[a:b] for a, b in zip([0] + ends, ends)]  # the pixels of each part
+        px += [boxes_to_pixels(np.asarray(xy, dtype=float), np.cos(yaw), np.sin(yaw), np.asarray(size, dtype=float),
+                               *raster) for xy, yaw, size, _ in groups]  # (K, 4, 2) each
         if len(near) >= 2:
             cv2.polylines(out[ROUTE], [px[0]], False, 255, max(1, int(round(2.0 / RES))), cv2.LINE_8, shift=4)
         i = 1
@@ -167,7 +171,6 @@ class BevRenderer:
                 cv2.polylines(out[LIGHTS], segments, False, level, 2, cv2.LINE_8, shift=4)
             i += len(stops[level])
         for (_, _, _, cls), box_px in zip(groups, px[i:]):
-            box_px = box_px.reshape(-1, 4, 2)
             present = set(cls.tolist())
             for ch, kind in ((VEHICLES, VEHICLE), (WALKERS, PEDESTRIAN), (OBSTACLES, STATIC)):
                 if kind in present:
@@ -194,39 +197,6 @@ def _stop_line(shape: np.ndarray, width: float) -> np.ndarray:
     t = (end - before) / max(np.hypot(*(end - before)), 1e-9)
     n = np.array([-t[1], t[0]]) * width / 2
     return np.stack([end - n, end + n])
-
-
-_BOX_X = np.array([1.0, 1.0, -1.0, -1.0])  # corner signs along a box's length ...
-_BOX_Y = np.array([1.0, -1.0, -1.0, 1.0])  # ... and across it
-
-
-def _corners(xy: np.ndarray, yaw: np.ndarray, size: np.ndarray) -> np.ndarray:
-    """(K, 4, 2) corners of oriented boxes (written into one array: this runs every frame)."""
-    c, s = np.cos(yaw)[:, None], np.sin(yaw)[:, None]
-    dx = _BOX_X * (size[:, 0] / 2)[:, None]  # (K, 4) corner offsets in the box frame
-    dy = _BOX_Y * (size[:, 1] / 2)[:, None]
-    out = np.empty(dx.shape + (2,), dtype=np.result_type(xy, c, dx))
-    x, y = out[..., 0], out[..., 1]
-    np.add(xy[:, 0, None], c * dx, out=x)
-    x -= s * dy
-    np.add(xy[:, 1, None], s * dx, out=y)
-    y += c * dy
-    return out
-
-
-def _ego_pixels(ego):
-    """World points -> BEV pixel coordinates (x 16 for cv2's 4-bit subpixel shift)."""
-    c, s = math.cos(ego.yaw), math.sin(ego.yaw)
-
-    def to_px(pts: np.ndarray) -> np.ndarray:
-        d = np.asarray(pts, dtype=float) - (ego.x, ego.y)
-        dx, dy = d[:, 0], d[:, 1]
-        uv = np.empty_like(d)
-        np.subtract(SIZE / 2, (-s * dx + c * dy) / RES, out=uv[:, 0])  # left [m] -> column
-        np.subtract(EGO_ROW, (c * dx + s * dy) / RES, out=uv[:, 1])  # forward [m] -> row
-        uv *= 16
-        return np.rint(uv, out=uv).astype(np.int32)
-    return to_px
 
 
 PALETTE = {  # BGR colours of the people's rendering, drawn in this order (later on top)

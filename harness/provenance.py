@@ -32,7 +32,8 @@ from harness.errors import BadInput
 PACKAGES = ("scenarios", "sumo_nets", "controller", "harness", "scimm", "model")
 SUFFIXES = (".py", ".xml", ".pt")
 # the distributions whose code runs inside the loop, the scoring or the student's export
-LIBRARIES = ("libsumo", "sumolib", "numpy", "scipy", "opencv-python-headless", "torch", "onnxruntime", "onnx")
+LIBRARIES = ("libsumo", "sumolib", "numpy", "scipy", "opencv-python-headless", "torch", "onnxruntime", "onnx",
+             "numba")
 
 
 def _package_dir(name: str) -> Path:

@@ -8,8 +8,10 @@ import numpy as np
 import pytest
 import torch
 
-from controller.pid import LAT_KI, LAT_KP, SPEED_KD, SPEED_KI, SPEED_KP
-from controller.simlingo import CREEP_TICKS, STUCK_TICKS, SimLingoController, desired_speed, resample_path
+from controller.lookahead import lookahead_point
+from controller.pid import LAT_KI, LAT_KP, SPEED_KD, SPEED_KI, SPEED_KP, LateralPID
+from controller.simlingo import (CREEP_TICKS, PATH_STEP, STUCK_TICKS, SimLingoController, desired_speed,
+                                resample_path)
 from controller.vehicle import Control
 from harness.agent import Prediction, load_agent
 
@@ -98,6 +100,47 @@ def test_resample_path_every_tenth_of_a_metre_from_the_origin():
     np.testing.assert_allclose(pts, np.stack([np.zeros(10), np.arange(1, 11) * 0.1], 1), atol=1e-12)
     np.testing.assert_array_equal(resample_path(np.zeros((20, 2))), [[0.0, 0.0]])  # degenerate
 
+
+
+def _random_paths(rng: np.random.Generator, n: int) -> list[np.ndarray]:
+    """Paths (20, 2) [m] as a network might give them: winding, some with repeated points
+    (zero-length segments), some standing still, some short, some doubling back."""
+    out = []
+    for k in range(n):
+        p = np.cumsum(rng.normal(0.6, 0.6, size=(20, 2)), 0)
+        if k % 3 == 0:
+            p[rng.integers(0, 19)] = p[rng.integers(0, 19)]  # a repeated point
+        if k % 10 == 1:
+            p[:] = 0.0  # standing
+        if k % 10 == 2:
+            p *= 0.004  # shorter than one resampling step or a few
+        if k % 10 == 3:
+            p[10:] = p[9::-1]  # out and back
+        out.append(p)
+    return out
+
+
+def test_the_compiled_lookahead_point_equals_resampling_and_the_pid_target_bit_for_bit():
+    # controller.lookahead replicates resample_path + LateralPID.target operation by operation;
+    # equal doubles, not close ones, so the closed loop's records cannot move (exact ==)
+    rng = np.random.default_rng(7)
+    paths = _random_paths(rng, 4000) + [STRAIGHT, line(30.0), line(-89.0), np.zeros((1, 2))]
+    speeds = rng.uniform(0.0, 30.0, size=len(paths))  # the lookahead spans 2.4 .. 10.5 m
+    for path, v in zip(paths, speeds):
+        want = LateralPID().target(resample_path(path), v)
+        assert lookahead_point(path, LateralPID.lookahead(v), PATH_STEP) == want
+    assert lookahead_point(np.float32(STRAIGHT), 5.0, PATH_STEP) == (5.0, 0.0)  # a float32 path (ONNX output)
+    with pytest.raises(ValueError, match="non-finite path"):
+        lookahead_point(np.full((20, 2), np.nan), 5.0, PATH_STEP)
+
+
+def test_the_lookahead_point_by_hand():
+    # straight ahead at 36 km/h: lookahead clip(0.9755 * 36 + 1.915, 24, 105) = 37.03 -> 3.703 m;
+    # resampled every 0.1 m, the summed distance reaches it at the 38th point, x = 3.8 m
+    assert LateralPID.lookahead(10.0) == pytest.approx(3.7034, abs=1e-4)
+    x, y = lookahead_point(STRAIGHT, LateralPID.lookahead(10.0), PATH_STEP)
+    assert (x, y) == (pytest.approx(3.8, abs=1e-12), 0.0)
+    assert lookahead_point(STRAIGHT[:2] * 0.05, 3.0, PATH_STEP) == (0.05, 0.0)  # 5 cm long: its last point
 
 def test_the_student_runs_its_network_only_for_new_inputs_and_repeats_give_its_outputs(tmp_path):
     """A tick whose inputs equal the previous tick's as the network sees them (binarised

@@ -1,0 +1,67 @@
+"""The BEV's compiled pixel transforms (harness.bev_pixels) against the NumPy formulas they
+replaced, bit for bit, and one pixel by hand."""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from harness.bev import EGO_ROW, RES, SIZE
+from harness.bev_pixels import boxes_to_pixels, points_to_pixels
+
+
+def numpy_corners(xy: np.ndarray, yaw: np.ndarray, size: np.ndarray) -> np.ndarray:
+    """(K, 4, 2) box corners, as harness.bev computed them in NumPy before session 16."""
+    c, s = np.cos(yaw)[:, None], np.sin(yaw)[:, None]
+    dx = np.array([1.0, 1.0, -1.0, -1.0]) * (size[:, 0] / 2)[:, None]
+    dy = np.array([1.0, -1.0, -1.0, 1.0]) * (size[:, 1] / 2)[:, None]
+    out = np.empty(dx.shape + (2,))
+    x, y = out[..., 0], out[..., 1]
+    np.add(xy[:, 0, None], c * dx, out=x)
+    x -= s * dy
+    np.add(xy[:, 1, None], s * dx, out=y)
+    y += c * dy
+    return out
+
+
+def numpy_pixels(pts: np.ndarray, ex: float, ey: float, yaw: float) -> np.ndarray:
+    """World points -> BEV pixels x 16, as harness.bev computed them in NumPy before session 16."""
+    c, s = math.cos(yaw), math.sin(yaw)
+    d = np.asarray(pts, dtype=float) - (ex, ey)
+    dx, dy = d[:, 0], d[:, 1]
+    uv = np.empty_like(d)
+    np.subtract(SIZE / 2, (-s * dx + c * dy) / RES, out=uv[:, 0])
+    np.subtract(EGO_ROW, (c * dx + s * dy) / RES, out=uv[:, 1])
+    uv *= 16
+    return np.rint(uv, out=uv).astype(np.int32)
+
+
+def raster(ex: float, ey: float, yaw: float) -> tuple:
+    return ex, ey, math.cos(yaw), math.sin(yaw), SIZE / 2, float(EGO_ROW), RES
+
+
+def test_points_and_box_corners_give_numpys_pixels_bit_for_bit():
+    rng = np.random.default_rng(3)
+    for _ in range(300):
+        ex, ey, yaw = *rng.uniform(-2000.0, 2000.0, 2), float(rng.uniform(-math.pi, math.pi))
+        pts = np.array([ex, ey]) + rng.normal(0.0, 30.0, size=(int(rng.integers(0, 400)), 2))
+        np.testing.assert_array_equal(points_to_pixels(pts, *raster(ex, ey, yaw)), numpy_pixels(pts, ex, ey, yaw))
+        k = int(rng.integers(0, 40))
+        table = np.column_stack([np.array([ex, ey]) + rng.normal(0.0, 30.0, size=(k, 2)),
+                                 rng.uniform(-4.0, 4.0, k), rng.uniform(0.3, 12.0, (k, 2))])
+        xy, yaw_k, size = table[:, :2], table[:, 2], table[:, 3:5]  # strided views, as a Snapshot's
+        got = boxes_to_pixels(xy, np.cos(yaw_k), np.sin(yaw_k), size, *raster(ex, ey, yaw))
+        want = numpy_pixels(numpy_corners(xy, yaw_k, size).reshape(-1, 2), ex, ey, yaw).reshape(-1, 4, 2)
+        np.testing.assert_array_equal(got, want)
+
+
+def test_a_pixel_by_hand():
+    # ego at (100, 50) heading north (yaw pi/2): a point 12 m north and 3 m west of it is
+    # 12 m ahead and 3 m to the left: column 32 - 3 / 0.75 = 28, row 48 - 12 / 0.75 = 32
+    px = points_to_pixels(np.array([[97.0, 62.0]]), *raster(100.0, 50.0, math.pi / 2))
+    np.testing.assert_array_equal(px, [[28 * 16, 32 * 16]])
+    # a 4 m x 2 m box there, aligned with the ego: corners 2 m ahead / behind, 1 m each side
+    box = boxes_to_pixels(np.array([[97.0, 62.0]]), np.array([0.0]), np.array([1.0]), np.array([[4.0, 2.0]]),
+                          *raster(100.0, 50.0, math.pi / 2))
+    front_left = (28 - 1 / RES, 32 - 2 / RES)  # the first corner: +length/2 along, +width/2 across (left)
+    np.testing.assert_array_equal(box[0, 0], np.rint(np.array(front_left) * 16))

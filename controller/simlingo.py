@@ -6,8 +6,9 @@ Stepped once per 0.05 s tick (notes controllers.md §5b; our own implementation)
   resampled every PATH_STEP = 0.1 m of arc length (linear interpolation; SimLingo uses a
   monotone cubic, which on 1 m-spaced points moves the lookahead point by millimetres) and
   fed to the PDM-Lite lateral PID (controller.pid.LateralPID: lookahead clip(0.9755 v[km/h]
-  + 1.915, 24, 105) samples = 2.4 .. 10.5 m, Kp 3.1184, Ki 0.6406, Kd 1.3783, window 6).
-  Steer rounded to 3 decimals; **positive steer turns right** (controller.vehicle.Control),
+  + 1.915, 24, 105) samples = 2.4 .. 10.5 m, Kp 3.1184, Ki 0.6406, Kd 1.3783, window 6);
+  the lookahead point in one compiled pass (controller.lookahead, equal to
+  ``LateralPID.target(resample_path(path), speed)`` bit for bit). Steer rounded to 3 decimals; **positive steer turns right** (controller.vehicle.Control),
   so a path bending left (y > 0) gives a negative steer.
 - Longitudinal: desired speed = 2 ||w(0.25 s) - w(0.75 s)|| [m/s] from the speed
   waypoints; SimLingo's speed PID (controller.pid.SpeedPID: Kp 1.75, Ki 1.0, Kd 2.0,
@@ -34,7 +35,7 @@ CREEP_THROTTLE = 0.4  # minimum throttle while creeping [-]
 def resample_path(path: np.ndarray, step: float = PATH_STEP) -> np.ndarray:
     """(N, 2) path [m] -> points every ``step`` m of arc length from ``step`` on, measured
     from the ego origin (prepended); a degenerate path (no length) -> its last point."""
-    # written with preallocated arrays rather than vstack / diff / stack: this runs every tick
+    # the closed loop runs controller.lookahead, which replicates this and LateralPID.target
     p = np.asarray(path, dtype=float)
     pts = np.empty((len(p) + 1, 2))
     pts[0], pts[1:] = 0.0, p

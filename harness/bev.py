@@ -160,8 +160,10 @@ class BevRenderer:
         all_px = points_to_pixels(np.concatenate(parts), *raster)
         ends = list(accumulate(len(p) for p in parts))
         px = [all_px[a:b] for a, b in zip([0] + ends, ends)]  # the pixels of each part
-        px += [boxes_to_pixels(np.asarray(xy, dtype=float), np.cos(yaw), np.sin(yaw), np.asarray(size, dtype=float),
-                               *raster) for xy, yaw, size, _ in groups]  # (K, 4, 2) each
+        for xy, yaw, size, _ in groups:  # (K, 4, 2) pixels each; the kernel takes float64 (a float32
+            yaw = np.asarray(yaw, dtype=float)  # snapshot's boxes are placed in float64 arithmetic)
+            px.append(boxes_to_pixels(np.asarray(xy, dtype=float), np.cos(yaw), np.sin(yaw),
+                                      np.asarray(size, dtype=float), *raster))
         if len(near) >= 2:
             cv2.polylines(out[ROUTE], [px[0]], False, 255, max(1, int(round(2.0 / RES))), cv2.LINE_8, shift=4)
         i = 1

@@ -6,8 +6,14 @@ import math
 
 import numpy as np
 
-from harness.bev import EGO_ROW, RES, SIZE
+from controller.vehicle import EgoState
+from harness.bev import EGO_ROW, RES, SIZE, VEHICLES, BevRenderer
 from harness.bev_pixels import boxes_to_pixels, points_to_pixels
+from harness.plan import build_plan
+from harness.world import VEHICLE, Snapshot
+from scenarios import resolve_set
+from scenarios.routefile import read_routes
+from sumo_nets import load_net
 
 
 def numpy_corners(xy: np.ndarray, yaw: np.ndarray, size: np.ndarray) -> np.ndarray:
@@ -65,3 +71,20 @@ def test_a_pixel_by_hand():
                           *raster(100.0, 50.0, math.pi / 2))
     front_left = (28 - 1 / RES, 32 - 2 / RES)  # the first corner: +length/2 along, +width/2 across (left)
     np.testing.assert_array_equal(box[0, 0], np.rint(np.array(front_left) * 16))
+
+
+def test_a_float32_snapshot_is_drawn_as_its_float64_copy():
+    # the kernels take float64; draw casts a float32 snapshot (a dataset written elsewhere)
+    route = read_routes(resolve_set("town12_smoke"))[1][0]
+    plan = build_plan(route, load_net(route.town))
+    x, y, yaw = plan.path.pose(20.0)
+    ego = EgoState(x, y, yaw, 5.0)
+    ahead = np.array([[x + 10 * math.cos(yaw), y + 10 * math.sin(yaw)]])  # a car 10 m ahead
+    snap32 = Snapshot(["v"], ahead.astype(np.float32), np.array([yaw], dtype=np.float32), np.array([5.0]),
+                      np.array([[4.5, 1.9]], dtype=np.float32), np.array([VEHICLE]), math.nan)
+    snap64 = Snapshot(["v"], snap32.xy.astype(float), snap32.yaw.astype(float), snap32.speed,
+                      snap32.size.astype(float), snap32.cls, math.nan)
+    r = BevRenderer.for_town(route.town)
+    bev32, bev64 = r.draw(ego, snap32, plan, [], []), r.draw(ego, snap64, plan, [], [])
+    np.testing.assert_array_equal(bev32, bev64)
+    assert bev64[VEHICLES].any()  # the car is drawn

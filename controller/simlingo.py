@@ -8,8 +8,9 @@ Stepped once per 0.05 s tick (notes controllers.md §5b; our own implementation)
   fed to the PDM-Lite lateral PID (controller.pid.LateralPID: lookahead clip(0.9755 v[km/h]
   + 1.915, 24, 105) samples = 2.4 .. 10.5 m, Kp 3.1184, Ki 0.6406, Kd 1.3783, window 6);
   the lookahead point in one compiled pass (controller.lookahead, equal to
-  ``LateralPID.target(resample_path(path), speed)`` bit for bit). Steer rounded to 3 decimals; **positive steer turns right** (controller.vehicle.Control),
-  so a path bending left (y > 0) gives a negative steer.
+  ``LateralPID.target(resample_path(path), speed)`` bit for bit). Steer rounded to 3
+  decimals; **positive steer turns right** (controller.vehicle.Control), so a path bending
+  left (y > 0) gives a negative steer.
 - Longitudinal: desired speed = 2 ||w(0.25 s) - w(0.75 s)|| [m/s] from the speed
   waypoints; SimLingo's speed PID (controller.pid.SpeedPID: Kp 1.75, Ki 1.0, Kd 2.0,
   window 20, error clipped to [0, 1] m/s) with its brake rule: brake when the desired speed

@@ -1,1 +1,14 @@
-"""The closed loop and the command line (SPEC §3, §9). The CLI lives in ``harness.cli``."""
+"""The closed loop (SPEC §3-§5, §9-§10): one subpackage per concern, imported in this order.
+
+    common/    atomic file writes and the bad-input error, shared by every stage
+    sim/       the simulated world: libsumo, hazards, background traffic, contacts, the
+               route's global plan (the only code that calls libsumo)
+    sensors/   the BEV raster
+    scoring/   route-ending criteria, Leaderboard infractions and scores, stability
+               metrics, the record schema, run-folder files, reports and figures
+    loop/      the agent API, the episode loop, the reference agent, rendering
+    expert/    the privileged expert and the dataset it records
+    runs/      route runs over processes or Ray, provenance, the bench
+
+Each subpackage imports only the ones above it in this list.
+"""

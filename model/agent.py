@@ -28,7 +28,7 @@ import torch
 
 from controller.simlingo import SimLingoController
 from controller.vehicle import Control
-from harness.agent import AutonomousAgent, Prediction
+from harness.loop.agent import AutonomousAgent, Prediction
 from model.cache import binarize
 from model.checkpoint import load_checkpoint, resolve
 from model.runtime import INFERENCE_THREADS, OnnxNetwork

@@ -1,7 +1,7 @@
 """``sumo-scimm bench``: every performance figure of SPEC §11, each beside its reference
 measured in the same run, printed as a table and optionally written as JSON.
 
-- closed loop (``harness.bench``): harness step with the chosen agent against bare libsumo
+- closed loop (``harness.runs.bench``): harness step with the chosen agent against bare libsumo
   stepping of the same traffic with the ego replayed, plus, for a student, its bare
   inference (its own checkpoint's ``predict`` on inputs recorded in the same episodes, one
   thread), and, for reading, the libsumo replay with that network run between steps and
@@ -10,7 +10,7 @@ measured in the same run, printed as a table and optionally written as JSON.
   IMMEstimator on the same sequences, and the largest difference between them;
 - student (``model.bench``): training samples per second on 2 threads, inference ms per
   frame at batch 1 on one thread;
-- collect (``harness.bench.collect_rate``): simulated seconds per wall second of one worker
+- collect (``harness.runs.bench.collect_rate``): simulated seconds per wall second of one worker
   recording the expert as ``sumo-scimm collect`` does;
 - with ``--eval``: wall time of a whole ``town12_short`` evaluation on 2 workers with the
   agent, and the worker memory (RSS) over it.
@@ -32,8 +32,8 @@ import tempfile
 import time
 from pathlib import Path
 
-from harness.agent import DEFAULT_AGENT
-from harness.atomic import write_atomic
+from harness.loop.agent import DEFAULT_AGENT
+from harness.common.atomic import write_atomic
 
 EVAL_TARGET_S, OVERHEAD_TARGET, RSS_TARGET_MB, REPRODUCE_TARGET_S = 180.0, 2.0, 800.0, 3600.0
 
@@ -42,8 +42,8 @@ def _eval_figures(agent: str, agent_config: str | None, workers: int, routes: st
                   repetitions: int = 1) -> dict:
     """Wall time and worker memory of ``sumo-scimm eval`` on ``routes`` (``repetitions``
     passes) with ``workers`` workers, in a temporary run folder."""
-    from harness.cli import main
-    from harness.runner import rss_summary
+    from sumo_scimm.cli import main
+    from harness.runs.runner import rss_summary
     with tempfile.TemporaryDirectory(prefix="sumo-scimm-bench-") as tmp:
         argv = ["eval", "--routes", routes, "--agent", agent, "--workers", str(workers), "--out", tmp + "/run",
                 "--repetitions", str(repetitions)]
@@ -60,7 +60,7 @@ def _eval_figures(agent: str, agent_config: str | None, workers: int, routes: st
 def _reproduce_figure(folder: str) -> dict:
     """The stage wall times a finished ``sumo-scimm reproduce`` recorded in FOLDER/stages.json
     (measured when it ran, not now: reproduce takes about an hour)."""
-    from harness.errors import BadInput
+    from harness.common.errors import BadInput
     path = Path(folder) / "stages.json"
     try:
         times = json.loads(path.read_text())
@@ -101,7 +101,7 @@ def _bare_inference(agent_name: str, agent_config: str | None):
     checkpoint and thread setting, ms per call; a function giving a call that runs that
     network once on the next of such inputs, for ``run_bench``'s ``network_between``);
     else (None, None)."""
-    from harness.agent import load_agent
+    from harness.loop.agent import load_agent
     from model.agent import StudentAgent
     from model.cache import binarize
     agent = load_agent(agent_name)
@@ -133,9 +133,9 @@ def _bare_inference(agent_name: str, agent_config: str | None):
 
 
 def _bench(args: argparse.Namespace) -> int:
-    from harness.bench import BenchError, collect_rate, format_bench, run_bench
-    from harness.cli import check_agent
-    from harness.errors import BadInput
+    from harness.runs.bench import BenchError, collect_rate, format_bench, run_bench
+    from sumo_scimm.cli import check_agent
+    from harness.common.errors import BadInput
     from model.bench import format_student_bench, run_student_bench
     from scimm.bench import format_imm_bench, run_imm_bench
     if args.routes_count < 1 or args.workers < 1 or args.rounds < 1:

@@ -1,6 +1,6 @@
 """Pre-rendered, bit-packed BEVs and labels of a dataset, built once and shared by trainings.
 
-Rendering a stored frame costs about 1 ms (harness.dataset.Episode.bev), as much as a
+Rendering a stored frame costs about 1 ms (harness.expert.dataset.Episode.bev), as much as a
 training step spends on a sample, so every frame is rendered once into a cache:
 
 - the student sees the BEV binarised (``binarize``: a pixel is on when its value is >=
@@ -31,7 +31,7 @@ from tqdm import tqdm
 
 from scimm.teacher import episode_files
 
-BEV_SHAPE = (9, 64, 64)  # harness.bev: (channels, rows, columns)
+BEV_SHAPE = (9, 64, 64)  # harness.sensors.bev: (channels, rows, columns)
 BEV_THRESHOLD = 64  # uint8 level at and above which a BEV pixel is "on"
 PACKED_BYTES = int(np.prod(BEV_SHAPE)) // 8
 AUG_SEED = 0  # fixed: the cache (and so the augmented views) is shared by every training
@@ -77,7 +77,7 @@ def augmentation(stem: str, n_frames: int, views: int) -> np.ndarray:
 
 def render_episode(path: str, views: int) -> dict[str, np.ndarray]:
     """Packed BEVs and labels of every frame and view of one episode file."""
-    from harness.dataset import Episode  # pulls OpenCV and the nets: only where rendering happens
+    from harness.expert.dataset import Episode  # pulls OpenCV and the nets: only where rendering happens
     ep = Episode(Path(path))
     n = len(ep)
     aug = augmentation(ep.path.stem, n, views)

@@ -19,8 +19,8 @@ from pathlib import Path
 
 import torch
 
-from harness.atomic import write_atomic
-from harness.errors import BadInput
+from harness.common.atomic import write_atomic
+from harness.common.errors import BadInput
 from model.network import NetConfig, Student
 
 FORMAT = "sumo-scimm-student/1"

@@ -1,4 +1,4 @@
-"""``sumo-scimm train ...`` subcommands (registered by ``harness.cli``)."""
+"""``sumo-scimm train ...`` subcommands (registered by ``sumo_scimm.cli``)."""
 from __future__ import annotations
 
 import argparse

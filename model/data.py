@@ -13,7 +13,7 @@ Row k is frame k of ``DIR/episodes/<stem>.npz``. A baseline (no teacher) never o
 Augmentation and teachers: a sample is either view 0 (as recorded) or an augmented view
 (model.cache: viewpoint shifted ``shift`` m left and turned ``rot`` rad). The expert labels
 of each view come from the cache; the path teacher is moved by the same rigid transform
-(``move``, the transform of harness.dataset.Episode.labels); the speed teacher and the mode
+(``move``, the transform of harness.expert.dataset.Episode.labels); the speed teacher and the mode
 posterior do not depend on the viewpoint and are kept. The speeds of eq. 12 start from
 ``origin`` = move((0, 0)), the ego's true position in the view's frame, so phi of the
 expert's own speed waypoints stays its true speed profile under augmentation.
@@ -33,8 +33,8 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from harness.bev import EGO_ROW, RES, ROUTE
-from harness.errors import BadInput
+from harness.sensors.bev import EGO_ROW, RES, ROUTE
+from harness.common.errors import BadInput
 from model import cache as bevcache
 from scimm.teacher import episode_files
 

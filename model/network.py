@@ -40,7 +40,7 @@ MODES = ("Cruise", "Turn", "Deceleration", "Avoidance", "Recovery")
 class NetConfig:
     """Architecture of the student; stored in every model checkpoint."""
 
-    in_channels: int = 9  # BEV channels (harness.bev.CHANNELS)
+    in_channels: int = 9  # BEV channels (harness.sensors.bev.CHANNELS)
     bev_size: int = 64  # BEV side [px]
     width: int = 16  # channels of the first conv stage (the second has 2x, the third D)
     d_model: int = 64  # token width D

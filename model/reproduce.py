@@ -20,7 +20,7 @@ from pathlib import Path
 
 import pandas as pd
 
-from harness.atomic import write_atomic
+from harness.common.atomic import write_atomic
 
 # (arm, teacher of `sumo-scimm train`): the paper's three students; the first is the baseline
 ARMS = (("baseline", "none"), ("fixed", "fixed"), ("scimm", "scimm"))
@@ -35,8 +35,8 @@ class Stages:
         self.times: dict[str, float] = json.loads(self.file.read_text()) if self.file.is_file() else {}
 
     def run(self, name: str, argv: list[str]) -> None:
-        from harness.cli import main
-        from harness.errors import BadInput
+        from sumo_scimm.cli import main
+        from harness.common.errors import BadInput
         print(f"== {name}: sumo-scimm {' '.join(argv)}", flush=True)
         t0 = time.perf_counter()
         if main(argv) != 0:
@@ -52,8 +52,8 @@ def reproduce(out: Path, seeds: int, workers: int, repetitions: int, epochs: int
     """Run (or finish) the experiment in ``out``; returns the Markdown summary. ``backend``:
     extra options of the collect and eval stages (``--backend ray [--address A]``); ``sets``:
     the training, validation and evaluation route sets (the paper's by default)."""
-    from harness.figures import waypoint_overlay
-    from harness.report import write_arm_report
+    from harness.scoring.figures import waypoint_overlay
+    from harness.scoring.report import write_arm_report
     from scimm.teacher import is_complete
     out.mkdir(parents=True, exist_ok=True)
     st = Stages(out)
@@ -128,8 +128,8 @@ def _markdown(df: pd.DataFrame) -> str:
 
 
 def _reproduce(args: argparse.Namespace) -> int:
-    from harness.cli import check_backend
-    from harness.errors import BadInput
+    from sumo_scimm.cli import check_backend
+    from harness.common.errors import BadInput
     from scenarios import UnknownSet, resolve_set
     for name in ("seeds", "workers", "repetitions"):
         if getattr(args, name) < 1:
@@ -152,7 +152,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     """Add ``sumo-scimm reproduce``."""
     import os
 
-    from harness.cli import add_backend_options
+    from sumo_scimm.cli import add_backend_options
     r = sub.add_parser("reproduce", help="the paper's whole experiment: collect, teachers, train, eval, tables",
                        description="Collect -> teachers -> train baseline/fixed/scimm per seed -> eval on "
                        f"{EVAL_SET} -> Tables 2-4, Fig. 4-5. Resumes: finished stages are skipped.")

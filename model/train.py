@@ -46,7 +46,7 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
-from harness.errors import BadInput
+from harness.common.errors import BadInput
 from model.checkpoint import WEIGHTS_NAME, git_commit, save_checkpoint
 from model.data import TEACHER_METHODS, StudentData
 from model.loss import BASELINE, LossWeights, total_loss

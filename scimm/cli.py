@@ -1,4 +1,4 @@
-"""``sumo-scimm teacher ...`` subcommands (registered by ``harness.cli``).
+"""``sumo-scimm teacher ...`` subcommands (registered by ``sumo_scimm.cli``).
 
     sumo-scimm teacher --data DIR [--method fixed|scimm|all]
         writes DIR/teacher/<method>/ (scimm.teacher), then, when both the fixed and the
@@ -15,8 +15,8 @@ from pathlib import Path
 
 from tqdm import tqdm
 
-from harness.atomic import write_atomic
-from harness.errors import BadInput
+from harness.common.atomic import write_atomic
+from harness.common.errors import BadInput
 from scimm import teacher as tch
 
 METHOD_CHOICES = (*tch.METHODS, "all")

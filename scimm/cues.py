@@ -45,7 +45,7 @@ _SOURCE = {"command": ("command",), "next_command": ("next_command",), "junction
 
 def cue_vector(arrays: Mapping[str, np.ndarray]) -> np.ndarray:
     """(T, 16) float64 cue matrix s_t, columns in ``CUES`` order, from an episode's arrays
-    (``harness.dataset.Episode.a`` or an ``np.load`` of the episode file)."""
+    (``harness.expert.dataset.Episode.a`` or an ``np.load`` of the episode file)."""
     cols = []
     for name in CUES:
         parts = [np.asarray(arrays[k], dtype=float) for k in _SOURCE[name]]

@@ -11,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
-from harness.atomic import write_atomic
+from harness.common.atomic import write_atomic
 from scimm.modes import MODES, IMMConfig
 from scimm.teacher import teach
 
@@ -25,8 +25,8 @@ def plot_posterior(episode_file: Path, out: Path, method: str = "scimm", cfg: IM
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from harness.bev import colorize
-    from harness.dataset import Episode
+    from harness.sensors.bev import colorize
+    from harness.expert.dataset import Episode
 
     cfg = cfg or IMMConfig()
     mu = teach([Path(episode_file)], method, cfg)[Path(episode_file).stem]["mu"]

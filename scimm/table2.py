@@ -43,7 +43,7 @@ DISPLAY = {"speed_delta": "Speed delta [m/s]", "speed_jerk": "Speed jerk [m/s^3]
 GROUPS = ("Cruise", "Turn", "Deceleration", "Avoidance/Recovery")
 ROWS = ("raw", "fixed", "scimm")
 ROW_NAMES = {"raw": "Original Raw Expert", "fixed": "Fixed-IMM", "scimm": "SC-IMM"}
-# situation of harness.dataset -> the modes that mean it (the mode-meaning check)
+# situation of harness.expert.dataset -> the modes that mean it (the mode-meaning check)
 MEANING = {"junction_turn": (TURN,), "stopping": (DECEL,), "bypass": (AVOID, RECOVER)}
 
 
@@ -272,8 +272,8 @@ def format_meaning(table: pd.DataFrame) -> str:
 
 
 def situations(a) -> np.ndarray:
-    """(T,) situation name of every frame of an episode's arrays (harness.dataset.situation)."""
-    from harness.dataset import situation
+    """(T,) situation name of every frame of an episode's arrays (harness.expert.dataset.situation)."""
+    from harness.expert.dataset import situation
     df = pd.DataFrame({"cue_junction": a["cue_junction"], "command": a["command"],
                        "target_speed": a["target_speed"], "v": a["v"], "cue_changed_route": a["cue_changed_route"]})
     return df.apply(situation, axis=1).to_numpy(dtype=str) if len(df) else np.array([], dtype=str)

@@ -28,7 +28,7 @@ from pathlib import Path
 
 import numpy as np
 
-from harness.atomic import write_atomic
+from harness.common.atomic import write_atomic
 from scimm import pathspeed
 from scimm.cues import cue_vector
 from scimm.imm import imm_filter

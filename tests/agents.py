@@ -5,9 +5,9 @@ import os
 import signal
 
 from controller.vehicle import Control
-from harness.route_follower import RouteFollower
-from harness.agent import AutonomousAgent
-from harness.expert import Expert
+from harness.loop.route_follower import RouteFollower
+from harness.loop.agent import AutonomousAgent
+from harness.expert.driver import Expert
 
 
 class SteerRight(AutonomousAgent):

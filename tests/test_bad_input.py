@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pytest
 
-from harness.cli import main
+from sumo_scimm.cli import main
 
 SMOKE_ROUTE = ["eval", "--routes", "town12_smoke", "--routes-subset", "0", "--agent", "route_follower",
                "--workers", "1"]
@@ -280,7 +280,7 @@ def test_data_show_on_damaged_or_empty_datasets(tmp_path):
 def test_agent_may_be_a_student_checkpoint_path(tmp_path):
     """SPEC §3: ``--agent PATH.pt`` is the student agent with that checkpoint; a missing
     file, or a different --agent-config beside it, is one line."""
-    from harness.cli import check_agent
+    from sumo_scimm.cli import check_agent
     ckpt = Path(__file__).resolve().parents[1] / "model" / "checkpoints" / "scimm" / "student.pt"
     assert check_agent(str(ckpt), None) == ("student", str(ckpt))
     assert check_agent(str(ckpt), str(ckpt)) == ("student", str(ckpt))

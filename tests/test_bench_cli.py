@@ -7,7 +7,7 @@ from __future__ import annotations
 import json
 import math
 
-from harness.cli import main
+from sumo_scimm.cli import main
 
 
 def test_bench_prints_and_writes_every_figure_beside_its_reference(tmp_path, capsys):

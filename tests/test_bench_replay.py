@@ -1,5 +1,5 @@
 """The bench's bare-libsumo reference steps the traffic the harness stepped (issue #9): the
-replay of a logged ego through ``harness.episode.Scene`` reproduces the episode's traffic,
+replay of a logged ego through ``harness.loop.episode.Scene`` reproduces the episode's traffic,
 and its check tells another traffic apart; a call between steps is timed apart from SUMO.
 Real libsumo; no performance figure is asserted."""
 from __future__ import annotations
@@ -7,8 +7,8 @@ from __future__ import annotations
 import math
 import time
 
-from harness.bench import _bare_step_ms
-from harness.episode import run_episode
+from harness.runs.bench import _bare_step_ms
+from harness.loop.episode import run_episode
 from scenarios import set_path
 from scenarios.routefile import read_routes
 

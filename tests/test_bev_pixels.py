@@ -1,4 +1,4 @@
-"""The BEV's compiled pixel transforms (harness.bev_pixels) against the NumPy formulas they
+"""The BEV's compiled pixel transforms (harness.sensors.bev_pixels) against the NumPy formulas they
 replaced, bit for bit, and one pixel by hand."""
 from __future__ import annotations
 
@@ -7,17 +7,17 @@ import math
 import numpy as np
 
 from controller.vehicle import EgoState
-from harness.bev import EGO_ROW, RES, SIZE, VEHICLES, BevRenderer
-from harness.bev_pixels import boxes_to_pixels, points_to_pixels
-from harness.plan import build_plan
-from harness.world import VEHICLE, Snapshot
+from harness.sensors.bev import EGO_ROW, RES, SIZE, VEHICLES, BevRenderer
+from harness.sensors.bev_pixels import boxes_to_pixels, points_to_pixels
+from harness.sim.plan import build_plan
+from harness.sim.world import VEHICLE, Snapshot
 from scenarios import resolve_set
 from scenarios.routefile import read_routes
 from sumo_nets import load_net
 
 
 def numpy_corners(xy: np.ndarray, yaw: np.ndarray, size: np.ndarray) -> np.ndarray:
-    """(K, 4, 2) box corners, as harness.bev computed them in NumPy before session 17."""
+    """(K, 4, 2) box corners, as harness.sensors.bev computed them in NumPy before session 17."""
     c, s = np.cos(yaw)[:, None], np.sin(yaw)[:, None]
     dx = np.array([1.0, 1.0, -1.0, -1.0]) * (size[:, 0] / 2)[:, None]
     dy = np.array([1.0, -1.0, -1.0, 1.0]) * (size[:, 1] / 2)[:, None]
@@ -31,7 +31,7 @@ def numpy_corners(xy: np.ndarray, yaw: np.ndarray, size: np.ndarray) -> np.ndarr
 
 
 def numpy_pixels(pts: np.ndarray, ex: float, ey: float, yaw: float) -> np.ndarray:
-    """World points -> BEV pixels x 16, as harness.bev computed them in NumPy before session 17."""
+    """World points -> BEV pixels x 16, as harness.sensors.bev computed them in NumPy before session 17."""
     c, s = math.cos(yaw), math.sin(yaw)
     d = np.asarray(pts, dtype=float) - (ex, ey)
     dx, dy = d[:, 0], d[:, 1]

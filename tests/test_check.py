@@ -7,7 +7,7 @@ import io
 
 from hypothesis import given, settings, strategies as st
 
-from harness.cli import main
+from sumo_scimm.cli import main
 from scenarios import set_path
 
 SMOKE = set_path("town12_smoke").read_text()

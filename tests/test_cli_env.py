@@ -6,7 +6,7 @@ import os
 import subprocess
 import sys
 
-CODE = ("from harness.cli import main; import os, numpy as np; "
+CODE = ("from sumo_scimm.cli import main; import os, numpy as np; "
         "print(os.environ['NUMPY_MADVISE_HUGEPAGE'], np._core.multiarray._get_madvise_hugepage())")
 
 

@@ -17,11 +17,11 @@ import pytest
 
 from controller.vehicle import LENGTH, EgoState
 from harness import bev as B
-from harness.cli import main
-from harness.episode import run_episode
-from harness.plan import build_plan
-from harness.scoring import rescore_results
-from harness.world import World
+from sumo_scimm.cli import main
+from harness.loop.episode import run_episode
+from harness.sim.plan import build_plan
+from harness.scoring.scores import rescore_results
+from harness.sim.world import World
 from scenarios import set_path
 from scenarios.routefile import read_routes
 from sumo_nets import load_net
@@ -126,7 +126,7 @@ def test_a_walker_that_has_crossed_is_gone_not_left_to_sumo():
 
 
 def test_bev_places_an_actor_where_it_is(tmp_path):
-    from harness.world import Snapshot
+    from harness.sim.world import Snapshot
     route = SMOKE[0]
     plan = build_plan(route, load_net("town12"))
     x, y, yaw = plan.path.pose(0.0)
@@ -147,7 +147,7 @@ def test_bev_places_an_actor_where_it_is(tmp_path):
 
 
 def test_a_repeated_scene_gets_its_last_frame_and_any_change_is_drawn_anew(monkeypatch):
-    from harness.world import Snapshot
+    from harness.sim.world import Snapshot
     plan = build_plan(SMOKE[0], load_net("town12"))
     x, y, yaw = plan.path.pose(0.0)
     renderer = B.BevRenderer.for_town("town12")
@@ -234,7 +234,7 @@ def test_killed_worker_is_recorded_and_the_run_completes(tmp_path, capsys, monke
 
 def test_resume_after_a_killed_run_neither_repeats_nor_loses_a_route(tmp_path, capsys):
     out = tmp_path / "run"
-    cmd = [sys.executable, "-m", "harness.cli", "eval", "--routes", "town12_smoke", "--agent", "expert",
+    cmd = [sys.executable, "-m", "sumo_scimm.cli", "eval", "--routes", "town12_smoke", "--agent", "expert",
            "--workers", "1", "--out", str(out)]
     proc = subprocess.Popen(cmd, start_new_session=True, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
                             env={**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[1])})
@@ -267,7 +267,7 @@ def test_the_hard_braking_leader_appears_gap_ahead_of_the_ego(short_routes, rid)
     spawned); route 50: SUMO deferred the insertion and the leader appeared 1.5 s later
     beside the ego, in the lane the route had left. Now it enters the ego's lane about
     ``gap`` m ahead of it, as soon as there is such a place (each failed before its fix)."""
-    from harness.runner import route_seed
+    from harness.runs.runner import route_seed
 
     idx = next(i for i, r in enumerate(short_routes) if r.id == rid)
     route = short_routes[idx]
@@ -306,8 +306,8 @@ def test_bev_rendering_starts_no_helper_threads():
 import math, os, numpy as np
 from controller.vehicle import EgoState
 from harness import bev as B
-from harness.plan import build_plan
-from harness.world import Snapshot
+from harness.sim.plan import build_plan
+from harness.sim.world import Snapshot
 from scenarios import set_path
 from scenarios.routefile import read_routes
 from sumo_nets import load_net

@@ -8,11 +8,11 @@ import numpy as np
 import pytest
 
 from controller.vehicle import LENGTH, WIDTH, EgoState
-from harness.contacts import overlaps
-from harness.episode import run_episode
-from harness.infractions import collisions, detect
-from harness.plan import build_plan
-from harness.world import World
+from harness.sim.contacts import overlaps
+from harness.loop.episode import run_episode
+from harness.scoring.infractions import collisions, detect
+from harness.sim.plan import build_plan
+from harness.sim.world import World
 from scenarios import set_path
 from scenarios.routefile import read_routes
 from sumo_nets import load_net

@@ -7,9 +7,9 @@ import pandas as pd
 import pytest
 
 from harness import bev as B
-from harness.cli import main
-from harness.dataset import Episode
-from harness.runner import Job, run_job
+from sumo_scimm.cli import main
+from harness.expert.dataset import Episode
+from harness.runs.runner import Job, run_job
 from scenarios import set_path
 from scenarios.routefile import read_routes
 from tests.agents import BevExpert

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import json
 
-from harness.cli import main
+from sumo_scimm.cli import main
 
 # route id -> what went wrong there (docs/expert.md, session 6)
 ONCE_FAILED = {

@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 import torch
 
-from harness.cli import BadInput, main
-from harness.dataset import Episode
+from sumo_scimm.cli import BadInput, main
+from harness.expert.dataset import Episode
 from model import cache as bevcache
 from model.checkpoint import load_checkpoint, save_checkpoint
 from model.data import StudentData, move
@@ -390,6 +390,6 @@ def test_the_shipped_students_load_safely_and_say_how_they_were_made(arm, teache
 
 
 def test_the_default_agent_is_the_shipped_scimm_student():
-    from harness.agent import DEFAULT_AGENT, load_agent
+    from harness.loop.agent import DEFAULT_AGENT, load_agent
     assert DEFAULT_AGENT == "scimm"
     load_agent(DEFAULT_AGENT).check_config(None)  # finds model/checkpoints/scimm/student.pt

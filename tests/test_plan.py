@@ -6,7 +6,7 @@ import math
 
 import numpy as np
 
-from harness.plan import END_PAD, TARGET_MIN, build_plan, route_lane
+from harness.sim.plan import END_PAD, TARGET_MIN, build_plan, route_lane
 from scenarios import set_path
 from scenarios.routefile import read_routes
 from sumo_nets import load_net
@@ -58,7 +58,7 @@ def test_a_hazard_is_placed_in_the_lane_the_route_is_in(short_routes):
 def test_a_hazards_road_sides_are_measured_from_the_lane_the_route_is_in(short_routes):
     """On route 50's lane change (lane 1 -> 2 of d45_d55), the road's right border lies one
     lane further right of the route at the end of the edge than at its start."""
-    from harness.hazard_actors import _road_sides
+    from harness.sim.hazards import _road_sides
     route = next(r for r in short_routes if r.id == "50")
     net = load_net("town12")
     plan = build_plan(route, net)

@@ -1,11 +1,11 @@
-"""The software a run records (harness.provenance): the code digest covers the stages' files
+"""The software a run records (harness.runs.provenance): the code digest covers the stages' files
 that can change a record, wherever they are installed; the versions are the installed ones;
 agents' checkpoints and modules are identified by their bytes."""
 from __future__ import annotations
 
 import re
 
-from harness import provenance
+from harness.runs import provenance
 
 
 def test_the_code_digest_follows_sources_nets_and_checkpoints_only(tmp_path, monkeypatch):
@@ -70,7 +70,7 @@ def test_a_config_digest_is_of_the_bytes_and_follows_a_rewrite(tmp_path):
 def test_a_module_agent_is_identified_by_its_module_file(tmp_path, monkeypatch):
     """An agent given as module:Class lives outside the stages: its file's digest is part
     of each route run, so editing it is another run."""
-    from harness.runner import Job
+    from harness.runs.runner import Job
     from scenarios import set_path
     from scenarios.routefile import read_routes
     (tmp_path / "my_agent.py").write_text("class A: pass\n")

@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from harness.cli import main
+from sumo_scimm.cli import main
 from tests.test_reliability import _without_wall_clock
 
 pytest.importorskip("ray", reason="ray is not installed (pip install 'sumo-scimm[ray]'): "

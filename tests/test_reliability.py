@@ -24,9 +24,9 @@ import pytest
 from hypothesis import example, given, settings, strategies as st
 
 from controller.vehicle import Control
-from harness.cli import main
-from harness.route_follower import RouteFollower
-from harness.runner import rss_summary
+from sumo_scimm.cli import main
+from harness.loop.route_follower import RouteFollower
+from harness.runs.runner import rss_summary
 
 ROOT = Path(__file__).resolve().parents[1]
 KEYS = ["0_rep0", "1_rep0", "2_rep0", "3_rep0"]
@@ -135,7 +135,7 @@ def test_libsumo_error_inf_control_and_deadline_each_fail_their_route(tmp_path, 
 def test_agent_setup_failure_is_recorded_as_such(tmp_path):
     """An agent whose setup raises ends before the first tick: "Failed - Agent couldn't be
     set up" with the reason, RC 0, an empty log (not a harness crash)."""
-    from harness.runner import Job, run_job
+    from harness.runs.runner import Job, run_job
     from scenarios import set_path
     from scenarios.routefile import read_routes
     config = tmp_path / "follower.json"
@@ -154,8 +154,8 @@ def test_a_ctrl_c_or_sigterm_while_a_route_is_written_lands_after_its_files(sign
     atomic.signals_held: a SIGINT (or a SIGTERM, which ``sumo-scimm`` turns into a
     Terminated exception) that arrives in between is raised only after the block (before,
     a Ctrl-C there left a record in records.jsonl that records.csv lacked)."""
-    from harness.atomic import signals_held
-    from harness.cli import Terminated, _raise_terminated
+    from harness.common.atomic import signals_held
+    from sumo_scimm.cli import Terminated, _raise_terminated
     done = []
     # Python's own Ctrl-C handler, also when this test runs where SIGINT is ignored
     handler, raised = ((signal.default_int_handler, KeyboardInterrupt) if signum == signal.SIGINT
@@ -181,7 +181,7 @@ def test_a_worker_ended_while_it_writes_a_file_leaves_no_temporary_file(tmp_path
 import os, signal, sys
 import numpy as np
 from pathlib import Path
-from harness.atomic import savez_atomic
+from harness.common.atomic import savez_atomic
 path = Path({str(tmp_path)!r}) / "0_rep0.npz"
 write = np.savez_compressed
 def stopped_midway(file, **arrays):  # the parent's SIGTERM arrives while the file is written
@@ -203,7 +203,7 @@ def _stop_a_smoke_eval(out: Path, stop) -> tuple[int, str, list[dict]]:
     """Start ``eval`` on town12_smoke (2 workers, its own process group), call ``stop(proc)``
     once a route is recorded; returns the exit code, stderr and the records then, after
     checking that no worker outlived the parent."""
-    cmd = [sys.executable, "-m", "harness.cli", "eval", "--routes", "town12_smoke", "--agent", "route_follower",
+    cmd = [sys.executable, "-m", "sumo_scimm.cli", "eval", "--routes", "town12_smoke", "--agent", "route_follower",
            "--workers", "2", "--out", str(out)]
     # Ctrl-C as in a terminal: SIGINT at its default even when this test itself runs in a
     # background job, where the shell starts every process with SIGINT ignored
@@ -239,7 +239,7 @@ def test_sigterm_ends_the_workers_and_the_run_resumes(tmp_path):
 def test_a_stop_inside_a_reproduce_stage_ends_reproduce_as_stopped_not_as_a_failed_stage(tmp_path, monkeypatch, capsys):
     """reproduce runs each stage through main(): a SIGTERM (or Ctrl-C) that lands in a stage
     ends the whole command with 143 (130), not with 'stage failed' and exit 2."""
-    import harness.cli as cli
+    import sumo_scimm.cli as cli
 
     def stopped(args):
         raise cli.Terminated()

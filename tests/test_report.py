@@ -1,4 +1,4 @@
-"""Tables 3-4 over several seeds per arm (harness.report.write_arm_report), on hand-made
+"""Tables 3-4 over several seeds per arm (harness.scoring.report.write_arm_report), on hand-made
 run folders whose figures are worked out by hand."""
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-from harness.report import TABLE4, arm_figures, fig, write_arm_report
+from harness.scoring.report import TABLE4, arm_figures, fig, write_arm_report
 
 COLS = ["key", "ds", "rc", "is", "collisions_layout", "collisions_pedestrian", "collisions_vehicle",
         "km_driven"] + [k for k, _ in TABLE4]

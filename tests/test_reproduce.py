@@ -8,7 +8,7 @@ import json
 
 import pytest
 
-from harness.cli import main
+from sumo_scimm.cli import main
 
 SMOKE = ["--train-routes", "town12_smoke", "--val-routes", "town12_smoke", "--eval-routes", "town12_smoke"]
 

@@ -8,9 +8,9 @@ import math
 import numpy as np
 import pytest
 
-from harness.cli import main
-from harness.infractions import KEYS
-from harness.scoring import global_record, infraction_penalty, rescore_results, route_record, route_status
+from sumo_scimm.cli import main
+from harness.scoring.infractions import KEYS
+from harness.scoring.scores import global_record, infraction_penalty, rescore_results, route_record, route_status
 
 PED = "Agent collided against object with type=walker.pedestrian.0001 and id=12 at (x=1.0, y=2.0, z=0.0)"
 VEH = "Agent collided against object with type=vehicle.tesla.model3 and id=13 at (x=1.0, y=2.0, z=0.0)"
@@ -183,8 +183,8 @@ def test_rescoring_is_idempotent():
 def test_summary_does_not_depend_on_the_order_routes_finished_in():
     """Workers finish routes in an order that changes from run to run; summary.csv (values and
     bootstrap intervals) must not. Before the fix the intervals followed the arrival order."""
-    from harness.outputs import summary_rows
-    from harness.runner import STABILITY
+    from harness.scoring.outputs import summary_rows
+    from harness.runs.runner import STABILITY
     rng = np.random.default_rng(3)
     records = [{"route_id": str(i), "repetition": 0, "ds": float(rng.uniform(0, 100)),
                 "rc": float(rng.uniform(50, 100)), "is": float(rng.uniform(0, 1)),

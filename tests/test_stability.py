@@ -1,11 +1,11 @@
-"""The temporal-stability metrics (harness.stability, the paper's Table 4), with values
+"""The temporal-stability metrics (harness.scoring.stability, the paper's Table 4), with values
 derived by hand and np.polyfit as the oracle of the batched quadratic fits."""
 import warnings
 
 import numpy as np
 import pytest
 
-from harness.stability import path_curvature, quadratic_fits, second_difference, stability, waypoint_speeds
+from harness.scoring.stability import path_curvature, quadratic_fits, second_difference, stability, waypoint_speeds
 
 
 def test_the_batched_fit_recovers_exact_quadratics():

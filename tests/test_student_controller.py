@@ -13,7 +13,7 @@ from controller.pid import LAT_KI, LAT_KP, SPEED_KD, SPEED_KI, SPEED_KP, Lateral
 from controller.simlingo import (CREEP_TICKS, PATH_STEP, STUCK_TICKS, SimLingoController, desired_speed,
                                 resample_path)
 from controller.vehicle import Control
-from harness.agent import Prediction, load_agent
+from harness.loop.agent import Prediction, load_agent
 
 STRAIGHT = np.stack([np.arange(20.0), np.zeros(20)], 1)  # 0..19 m straight ahead
 

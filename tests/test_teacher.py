@@ -10,7 +10,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from harness.cli import main
+from sumo_scimm.cli import main
 from scimm import pathspeed as ps
 from scimm.cues import CUES, cue_vector
 from scimm.imm import imm_filter

@@ -8,7 +8,7 @@ import pytest
 
 from controller.pid import LateralPID, PID, SpeedPID
 from controller.vehicle import DT, LF, LR, EgoState, EgoVehicle, Control, bicycle_step, next_speed
-from harness.contacts import overlaps
+from harness.sim.contacts import overlaps
 
 
 def test_speed_model_matches_the_fitted_polynomials():

@@ -1,9 +1,9 @@
-"""A worker hands the memory its last route freed back to the system (harness.runner)."""
+"""A worker hands the memory its last route freed back to the system (harness.runs.runner)."""
 from __future__ import annotations
 
 import pytest
 
-from harness.runner import release_freed_memory, rss_mb
+from harness.runs.runner import release_freed_memory, rss_mb
 
 
 def test_freed_heap_memory_leaves_the_resident_set():

@@ -53,9 +53,9 @@ def main(route_indices: list[int]) -> None:
     for ms, v in runs.items():
         print(f"  spin {ms:5.1f} ms: {', '.join(f'{x:.1f}' for x in v)}")
 
-    from harness.bench import _bare_step_ms
-    from harness.episode import run_episode
-    from harness.runner import route_seed
+    from harness.runs.bench import _bare_step_ms
+    from harness.loop.episode import run_episode
+    from harness.runs.runner import route_seed
     from model.agent import ScimmStudent
     from model.cache import binarize
     from scenarios import resolve_set

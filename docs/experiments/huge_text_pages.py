@@ -12,8 +12,8 @@ about 580 MB more resident memory.
 import ctypes
 import sys
 
-from harness.episode import run_episode
-from harness.runner import route_seed
+from harness.loop.episode import run_episode
+from harness.runs.runner import route_seed
 from scenarios import resolve_set
 from scenarios.routefile import read_routes
 

@@ -5,7 +5,7 @@
 RUN_DIR is an ``eval`` run folder (records.jsonl and logs/); ROUTE_SET the set it ran
 (default town12_short). Each variant replaces the logged background speed (the reference
 of Leaderboard 2.0's MinimumSpeedRouteTest, docs/scoring.md) on some ticks and rescores
-every route with the same minimum-speed rule (harness.infractions.min_speed) and the same
+every route with the same minimum-speed rule (harness.scoring.infractions.min_speed) and the same
 other infractions:
 
 - ``alpha x while standing``: on the ticks where the ego stands (below 0.1 m/s) the
@@ -48,9 +48,9 @@ from typing import Callable
 
 import numpy as np
 
-from harness.infractions import min_speed
-from harness.plan import build_plan, leg_at
-from harness.scoring import infraction_penalty
+from harness.scoring.infractions import min_speed
+from harness.sim.plan import build_plan, leg_at
+from harness.scoring.scores import infraction_penalty
 from scenarios import set_path
 from scenarios.routefile import read_routes
 from sumo_nets import load_net

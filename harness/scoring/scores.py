@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import math
 
-from harness.infractions import KEYS
+from harness.scoring.infractions import KEYS
 
 RULES = ("lb2.0", "lb2.1", "b2d")
 # multiplicative penalty per event, Leaderboard 2.0

@@ -30,9 +30,8 @@ import numpy as np
 import sumolib
 
 from controller.vehicle import DT
-from harness import criteria
-from harness.plan import GlobalPlan, route_lane
-from harness.world import PERSON_PREFIX, sumo_angle
+from harness.sim.plan import GlobalPlan, route_lane
+from harness.sim.world import PERSON_PREFIX, sumo_angle
 from scenarios.routefile import Hazard
 
 CURB_MARGIN = 1.2  # walkers start / end this far beyond the road edge [m]
@@ -44,6 +43,11 @@ RED_HOLD = 6.0  # the switched light stays red this long after the ego could rea
 # With keepRoute 0 or 2, SUMO 1.28 segfaulted in simulationStep when a walker was moved
 # across a crosswalk (town12_short route 29); 6 does not.
 PERSON_KEEP_ROUTE = 6
+# Scenario timeouts (notes leaderboard2.md §3.7): hazards that can block the ego get 240 s
+# from their trigger to their own end (the ego this far past the site)
+SCENARIO_TIMEOUT = 240.0  # [s]
+TIMEOUT_HAZARDS = ("ParkedObstacle", "SignalizedJunction", "UnprotectedLeftTurn")
+SCENARIO_END = 10.0  # [m]
 
 
 def _road_sides(plan: GlobalPlan, net: sumolib.net.Net, s: float) -> tuple[float, float]:
@@ -116,8 +120,8 @@ class HazardActor:
     def timeout_active(self, ego_s: float, time: float) -> bool:
         """Whether this hazard's 240 s scenario timeout is running (Leaderboard: the
         blocked check is off meanwhile): started, not passed, not yet timed out."""
-        return (self.started and self.h.type in criteria.TIMEOUT_HAZARDS
-                and ego_s < self.site_s + criteria.SCENARIO_END and time - self.t0 <= criteria.SCENARIO_TIMEOUT)
+        return (self.started and self.h.type in TIMEOUT_HAZARDS
+                and ego_s < self.site_s + SCENARIO_END and time - self.t0 <= SCENARIO_TIMEOUT)
 
     @property
     def tag(self) -> str:

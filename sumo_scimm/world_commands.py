@@ -1,5 +1,5 @@
 """``sumo-scimm nets ...`` and ``sumo-scimm routes ...``: the towns and the route sets
-(SPEC §2), registered by ``harness.cli``. Bad input raises ``harness.errors.BadInput``."""
+(SPEC §2), registered by ``sumo_scimm.cli``. Bad input raises ``harness.common.errors.BadInput``."""
 from __future__ import annotations
 
 import argparse
@@ -8,7 +8,7 @@ from pathlib import Path
 
 from tqdm import tqdm
 
-from harness.errors import BadInput
+from harness.common.errors import BadInput
 
 
 # --- nets -------------------------------------------------------------------------------
@@ -52,7 +52,7 @@ def _routes_make(args: argparse.Namespace) -> int:
 
 
 def _routes_check(args: argparse.Namespace) -> int:
-    from harness.cli import EXIT_BAD_INPUT
+    from sumo_scimm.cli import EXIT_BAD_INPUT
     from scenarios.check import check_file
     n, problems = check_file(Path(args.file))
     for p in problems:
@@ -72,7 +72,7 @@ def _routes_show(args: argparse.Namespace) -> int:
 
 def register(sub: argparse._SubParsersAction) -> None:
     """Add ``nets build|show`` and ``routes make|check|show``."""
-    from harness.cli import seed_arg
+    from sumo_scimm.cli import seed_arg
     nets = sub.add_parser("nets", help="build or describe the town networks")
     nsub = nets.add_subparsers(dest="action", required=True, parser_class=type(nets))
     b = nsub.add_parser("build", help="rebuild town nets with netconvert (seeded, reproducible)")

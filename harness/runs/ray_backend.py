@@ -7,7 +7,7 @@ for Ray Client) and only disconnects at the end.
 
 - One SUMO per process: a task runs in a fresh worker process (``max_calls=1``), so no
   libsumo state is ever shared between routes; it asks for 1 CPU.
-- Same records as the local backend: the task runs ``harness.runner.run_job`` on the same
+- Same records as the local backend: the task runs ``harness.runs.runner.run_job`` on the same
   Job (same seed); a task that raises is the route's "Failed - Simulation crashed" record,
   and so is a worker that dies (``max_retries=0``: never retried, as a dead local worker).
 - Results land on the driver: the task writes its episode log (and, for ``collect``, its
@@ -28,8 +28,8 @@ import socket
 import tempfile
 from pathlib import Path
 
-from harness.atomic import write_atomic
-from harness.runner import Job, crash_record, run_job_safely, worker_stats
+from harness.common.atomic import write_atomic
+from harness.runs.runner import Job, crash_record, run_job_safely, worker_stats
 
 OUTPUT_KINDS = ("logs", "episodes")  # folders of a task's files: Job.log_dir, Job.collect_dir
 CONNECT_TIMEOUT = 10.0  # s to reach the head node's port before ray.init (which would hang)

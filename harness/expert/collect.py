@@ -27,8 +27,8 @@ from pathlib import Path
 import numpy as np
 
 from controller.vehicle import DT
-from harness.atomic import savez_atomic
-from harness.plan import _DIRECTION_TO_OPTION, LANEFOLLOW, to_ego
+from harness.common.atomic import savez_atomic
+from harness.sim.plan import _DIRECTION_TO_OPTION, LANEFOLLOW, to_ego
 
 FRAME_EVERY = 5  # ticks per recorded frame (20 Hz -> 4 Hz)
 N_PATH, N_SPEED = 20, 10  # path points at 0..19 m; speed waypoints at 0.25..2.5 s

@@ -12,11 +12,11 @@ Sensors an agent may declare (``{"type": ..., "id": ...}``):
 | ``speed`` | ego speed [m/s] |
 | ``pose`` | world (x, y, yaw): m, m, rad CCW from +x (as GNSS + compass) |
 | ``target_point`` | next sparse route point >= 7.5 m ahead (past the route end: 7.5 m ahead on |
-|  | its straight run-on, harness.plan), ego frame (x fwd, y left) [m] |
+|  | its straight run-on, harness.sim.plan), ego frame (x fwd, y left) [m] |
 | ``command`` | RoadOption of the route at the ego (1 left, 2 right, 3 straight, 4 follow lane) |
-| ``bev`` | ego-centred BEV raster, uint8 (C, H, W) (harness.bev) |
+| ``bev`` | ego-centred BEV raster, uint8 (C, H, W) (harness.sensors.bev) |
 | ``world`` | privileged, for the expert: ``(snapshot, lights, props)``: every actor within |
-|  | 50 m (harness.world.Snapshot), the state of each route light (harness.world.TLS_CODES |
+|  | 50 m (harness.sim.world.Snapshot), the state of each route light (harness.sim.world.TLS_CODES |
 |  | index, in the order of the plan's light passages), harness-only static boxes |
 
 ``run_step`` returns a :class:`Control`, or ``(Control, Prediction)`` to report the
@@ -62,7 +62,7 @@ class AutonomousAgent:
         self.config: str | None = None
 
     def set_global_plan(self, plan) -> None:
-        """The route to drive (harness.plan.GlobalPlan: dense and sparse points, world frame)."""
+        """The route to drive (harness.sim.plan.GlobalPlan: dense and sparse points, world frame)."""
         self.plan = plan
 
     def setup(self, config: str | None) -> None:
@@ -99,8 +99,8 @@ def validate_sensors(specs: list[dict]) -> None:
 
 # Agents shipped with the harness, by CLI name.
 BUILTIN_AGENTS = {
-    "route_follower": "harness.route_follower:RouteFollower",
-    "expert": "harness.expert:Expert",
+    "route_follower": "harness.loop.route_follower:RouteFollower",
+    "expert": "harness.expert.driver:Expert",
     "student": "model.agent:StudentAgent",  # --agent-config MODEL_CHECKPOINT (student.pt)
     # the shipped students (model/checkpoints/<name>, made by sumo-scimm reproduce)
     "baseline": "model.agent:BaselineStudent",
@@ -133,7 +133,7 @@ def load_agent(name: str) -> AutonomousAgent:
     if cls is None or not isinstance(cls, type):
         raise AgentLoadError(f"agent {name!r}: {module_name!r} has no class {cls_name!r}")
     if not issubclass(cls, AutonomousAgent):
-        raise AgentLoadError(f"agent {name!r}: {cls_name} does not subclass harness.agent.AutonomousAgent")
+        raise AgentLoadError(f"agent {name!r}: {cls_name} does not subclass harness.loop.agent.AutonomousAgent")
     try:
         return cls()
     except Exception as exc:  # noqa: BLE001
@@ -147,6 +147,6 @@ def split_output(out) -> tuple[Control, Prediction | None]:
         return out, None
     if isinstance(out, tuple) and len(out) == 2 and isinstance(out[0], Control):
         if out[1] is not None and not isinstance(out[1], Prediction):
-            raise TypeError("run_step's second value must be a harness.agent.Prediction")
+            raise TypeError("run_step's second value must be a harness.loop.agent.Prediction")
         return out[0], out[1]
     raise TypeError(f"run_step returned {type(out).__name__}, expected Control or (Control, Prediction)")

@@ -7,8 +7,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from harness.bev import BevRenderer, colorize, ego_to_image
-from harness.episode import EpisodeResult, run_episode
+from harness.sensors.bev import BevRenderer, colorize, ego_to_image
+from harness.loop.episode import EpisodeResult, run_episode
 from scenarios.routefile import Route
 
 FPS = 20  # one video frame per simulation step (real time)

@@ -4,7 +4,7 @@ measured in the same run (SPEC §11). Never a timed test: numbers to read, not t
 - harness step: wall time per 0.05 s tick of the full loop (agent, vehicle model, SUMO
   mirroring, hazards, traffic, contacts, criteria, log) with the chosen agent;
 - bare libsumo step: the same SUMO work without the harness: the episode's
-  ``harness.episode.Scene`` (same net, seed, hazards, background traffic and route bubble)
+  ``harness.loop.episode.Scene`` (same net, seed, hazards, background traffic and route bubble)
   replaying the ego of the harness log, timed over ``Scene.advance`` (moveToXY, the hazard
   and traffic top-ups, ``simulationStep``). The replay checks that it reproduced the
   episode's traffic (the background speed of every tick equals the log's);
@@ -45,11 +45,11 @@ from typing import Callable
 
 import numpy as np
 
-from harness.bev import BevRenderer
-from harness.episode import EpisodeLog, Scene, background_roads, run_episode, sensor_inputs
-from harness.plan import build_plan
-from harness.runner import Job, route_seed, run_job
-from harness.world import World
+from harness.sensors.bev import BevRenderer
+from harness.loop.episode import EpisodeLog, Scene, background_roads, run_episode, sensor_inputs
+from harness.sim.plan import build_plan
+from harness.runs.runner import Job, route_seed, run_job
+from harness.sim.world import World
 from controller.vehicle import EgoState
 from scenarios import resolve_set
 from scenarios.routefile import Route, read_routes

@@ -23,9 +23,9 @@ import numpy as np
 from controller import longitudinal
 from controller.pid import LateralPID
 from controller.vehicle import LENGTH, WIDTH, Control
-from harness.agent import AutonomousAgent
-from harness.plan import to_ego
-from harness.world import PEDESTRIAN, STATIC, VEHICLE
+from harness.loop.agent import AutonomousAgent
+from harness.sim.plan import to_ego
+from harness.sim.world import PEDESTRIAN, STATIC, VEHICLE
 from sumo_nets import load_net
 
 HL, HW = LENGTH / 2, WIDTH / 2  # ego half length and half width [m]

@@ -26,11 +26,11 @@ import threading  # noqa: E402
 import zipfile  # noqa: E402
 from pathlib import Path  # noqa: E402
 
-from harness import world_cli  # noqa: E402
-from harness.agent import DEFAULT_AGENT  # noqa: E402
-from harness.atomic import write_atomic  # noqa: E402
-from harness.episode import AGENT_TIMEOUT  # noqa: E402
-from harness.errors import BadInput  # noqa: F401,E402 - also imported from here by users and tests
+from sumo_scimm import world_commands as world_cli  # noqa: E402
+from harness.loop.agent import DEFAULT_AGENT  # noqa: E402
+from harness.common.atomic import write_atomic  # noqa: E402
+from harness.loop.episode import AGENT_TIMEOUT  # noqa: E402
+from harness.common.errors import BadInput  # noqa: F401,E402 - also imported from here by users and tests
 
 EXIT_BAD_INPUT = 2
 # Modules of later stages with a ``register(subparsers)`` adding their subcommands.
@@ -99,7 +99,7 @@ def check_backend(args: argparse.Namespace) -> None:
     if args.address and args.backend != "ray":
         raise BadInput("--address needs --backend ray")
     if args.backend == "ray":
-        from harness.ray_backend import BackendError, check_available
+        from harness.runs.ray_backend import BackendError, check_available
         try:
             check_available()
         except BackendError as exc:
@@ -107,9 +107,9 @@ def check_backend(args: argparse.Namespace) -> None:
 
 
 def _run(jobs: list, out: Path, args: argparse.Namespace, **kwargs) -> list[dict]:
-    """harness.runner.run_eval on the chosen backend; a Ray that cannot be reached is bad input."""
-    from harness.ray_backend import BackendError
-    from harness.runner import run_eval
+    """harness.runs.runner.run_eval on the chosen backend; a Ray that cannot be reached is bad input."""
+    from harness.runs.ray_backend import BackendError
+    from harness.runs.runner import run_eval
     try:
         return run_eval(jobs, out, args.workers, args.resume, backend=args.backend, address=args.address, **kwargs)
     except BackendError as exc:
@@ -120,7 +120,7 @@ def check_agent(name: str, config: str | None) -> tuple[str, str | None]:
     """(agent, config) to run, checked: BadInput unless the agent loads and accepts its
     config (``--agent-config``, a file). ``--agent PATH.pt`` names a student checkpoint
     (SPEC §3): it is ``--agent student --agent-config PATH.pt``."""
-    from harness.agent import AgentLoadError, load_agent
+    from harness.loop.agent import AgentLoadError, load_agent
     if name.endswith(".pt") and ":" not in name:
         if not Path(name).is_file():
             raise BadInput(f"--agent {name!r}: no such checkpoint file")
@@ -137,8 +137,8 @@ def check_agent(name: str, config: str | None) -> tuple[str, str | None]:
 
 
 def _eval(args: argparse.Namespace) -> int:
-    from harness.agent import load_agent
-    from harness.runner import Job, route_seed, rss_summary
+    from harness.loop.agent import load_agent
+    from harness.runs.runner import Job, route_seed, rss_summary
     from scenarios import resolve_set
     from scenarios.check import check_file
     from scenarios.routefile import read_routes
@@ -181,8 +181,8 @@ def _eval(args: argparse.Namespace) -> int:
 
 
 def _render(args: argparse.Namespace) -> int:
-    from harness.render import render_route
-    from harness.runner import route_seed
+    from harness.loop.render import render_route
+    from harness.runs.runner import route_seed
     from scenarios import resolve_set
     from scenarios.routefile import read_routes
     if args.runs:
@@ -207,7 +207,7 @@ def _render(args: argparse.Namespace) -> int:
 def _render_overlay(args: argparse.Namespace) -> int:
     """Paper Fig. 5 from eval run folders: each run's consecutive predicted paths of route
     --route (repetition 0) near the point where the first run steered hardest."""
-    from harness.figures import waypoint_overlay
+    from harness.scoring.figures import waypoint_overlay
     if not args.out.lower().endswith(".png"):
         raise BadInput(f"--out {args.out!r} must end in .png for the waypoint overlay of --runs")
     folders = [Path(d) for d in args.runs]
@@ -224,7 +224,7 @@ def _render_overlay(args: argparse.Namespace) -> int:
 
 
 def _score(args: argparse.Namespace) -> int:
-    from harness.scoring import ScoreError, rescore_results
+    from harness.scoring.scores import ScoreError, rescore_results
     path = Path(args.results)
     if not path.is_file():
         raise BadInput(f"{path}: no such results file")
@@ -246,7 +246,7 @@ def _score(args: argparse.Namespace) -> int:
 
 
 def _report(args: argparse.Namespace) -> int:
-    from harness.report import ReportError, write_report
+    from harness.scoring.report import ReportError, write_report
     try:
         print(write_report([Path(d) for d in args.runs], Path(args.out)))
     except ReportError as exc:
@@ -255,8 +255,8 @@ def _report(args: argparse.Namespace) -> int:
 
 
 def _collect(args: argparse.Namespace) -> int:
-    from harness.dataset import build_index, describe
-    from harness.runner import Job, route_seed
+    from harness.expert.dataset import build_index, describe
+    from harness.runs.runner import Job, route_seed
     from scenarios import resolve_set
     from scenarios.check import check_file
     from scenarios.routefile import read_routes
@@ -279,7 +279,7 @@ def _collect(args: argparse.Namespace) -> int:
 
 def _data_show(args: argparse.Namespace) -> int:
     import pandas as pd
-    from harness.dataset import build_index, describe
+    from harness.expert.dataset import build_index, describe
     folder = Path(args.dir)
     if not (folder / "episodes").is_dir():
         raise BadInput(f"{folder} is not a dataset folder (no episodes/; make one with 'sumo-scimm collect')")
@@ -424,5 +424,5 @@ def main(argv: list[str] | None = None) -> int:
 
 if __name__ == "__main__":
     # run through the imported module, which reproduce and bench call too (one _depth)
-    from harness.cli import main as _main
+    from sumo_scimm.cli import main as _main
     sys.exit(_main())

@@ -30,8 +30,8 @@ from itertools import accumulate
 import cv2
 import numpy as np
 
-from harness.bev_pixels import boxes_to_pixels, points_to_pixels
-from harness.world import PEDESTRIAN, STATIC, VEHICLE
+from harness.sensors.bev_pixels import boxes_to_pixels, points_to_pixels
+from harness.sim.world import PEDESTRIAN, STATIC, VEHICLE
 from sumo_nets import load_net
 
 SIZE = 64  # raster side [px]
@@ -131,7 +131,7 @@ class BevRenderer:
         """(9, SIZE, SIZE) uint8 BEV around ego (x, y, yaw, world frame), drawn.
 
         The world points of the frame (route, stop lines) and the corners of its boxes become
-        pixels in compiled calls (harness.bev_pixels: one for the points, one per group of
+        pixels in compiled calls (harness.sensors.bev_pixels: one for the points, one per group of
         boxes), and each channel is drawn with one OpenCV call per group."""
         c, s = math.cos(ego.yaw), math.sin(ego.yaw)
         # output pixel (u, v) -> world: ego + R(yaw) (fwd, left), fwd = (EGO_ROW - v) RES,

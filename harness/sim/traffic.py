@@ -14,8 +14,8 @@ import libsumo
 import numpy as np
 import sumolib
 
-from harness.plan import GlobalPlan, route_lane
-from harness.world import PERSON_PREFIX
+from harness.sim.plan import GlobalPlan, route_lane
+from harness.sim.world import PERSON_PREFIX
 
 NEAR = 200.0  # background actors live on edges within this distance of the route [m]
 KEEP_CLEAR = 40.0  # no background vehicle starts this close to the ego's start [m]

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from harness.plan import GlobalPlan, Progress
+from harness.sim.plan import GlobalPlan, Progress
 
 # Leaderboard status texts (statistics_manager.py)
 COMPLETED = "Completed"
@@ -18,12 +18,6 @@ FAILED_TIMEOUT = "Failed - Agent timed out"
 FAILED_AGENT = "Failed - Agent crashed"
 FAILED_SIMULATION = "Failed - Simulation crashed"
 FAILED_SETUP = "Failed - Agent couldn't be set up"
-
-# Scenario timeouts (notes leaderboard2.md §3.7): hazards that can block the ego get 240 s
-# from their trigger to their own end (the ego this far past the site)
-SCENARIO_TIMEOUT = 240.0  # [s]
-TIMEOUT_HAZARDS = ("ParkedObstacle", "SignalizedJunction", "UnprotectedLeftTurn")
-SCENARIO_END = 10.0  # [m]
 
 
 class RouteCompletion:

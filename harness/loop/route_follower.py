@@ -13,8 +13,8 @@ import numpy as np
 
 from controller.pid import LateralPID, SpeedPID
 from controller.vehicle import Control
-from harness.agent import AutonomousAgent
-from harness.plan import to_ego
+from harness.loop.agent import AutonomousAgent
+from harness.sim.plan import to_ego
 
 TARGET_SPEED = 6.0  # [m/s] (21.6 km/h): below every speed limit of our towns
 SEARCH = 30  # dense points (1 m) searched ahead for the nearest route point

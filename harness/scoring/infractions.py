@@ -4,7 +4,7 @@ Detection is a function of the per-tick log (ego pose and speed, contacts, the r
 light states, background speed), the route's plan and the town's lanes, run once after
 the episode. It returns the Leaderboard's infraction lists: message strings in the
 Leaderboard's exact formats, keyed and ordered as in its results JSON. Scores are
-computed from these lists only (harness.scoring), as for a CARLA results file.
+computed from these lists only (harness.scoring.scores), as for a CARLA results file.
 
 SUMO stand-ins for CARLA geometry (decisions, see docs/scoring.md):
 - red light: the stop line is the end of every car lane of the edge entering the
@@ -25,10 +25,11 @@ import math
 import numpy as np
 
 from controller.vehicle import LENGTH
-from harness import criteria
-from harness.lanes import LaneIndex
-from harness.plan import GlobalPlan
-from harness.world import PEDESTRIAN, STATIC, VEHICLE
+from harness.scoring import criteria
+from harness.scoring.lanes import LaneIndex
+from harness.sim.hazards import SCENARIO_END, SCENARIO_TIMEOUT, TIMEOUT_HAZARDS
+from harness.sim.plan import GlobalPlan
+from harness.sim.world import PEDESTRIAN, STATIC, VEHICLE
 from scenarios.routefile import Route
 
 KEYS = ("collisions_layout", "collisions_pedestrian", "collisions_vehicle", "red_light", "stop_infraction",
@@ -40,7 +41,6 @@ RED_LIGHT_DIST = 15.0  # lights farther than this from the ego are skipped [m]
 STOP_BEFORE, STOP_AFTER, STOP_SPEED = 6.0, 1.0, 0.1  # stop zone around the stop line [m], [m/s]
 OUTSIDE_MARGIN, WRONG_DEG = 0.5, 120.0  # [m], [deg]
 MIN_SPEED_CHECKPOINTS = {"lb2.0": 4, "lb2.1": 4, "b2d": 20}
-SCENARIO_TIMEOUT, TIMEOUT_HAZARDS, SCENARIO_END = criteria.SCENARIO_TIMEOUT, criteria.TIMEOUT_HAZARDS, criteria.SCENARIO_END
 _RED = (0, 1)  # TLS_CODES indices of 'r' and 'R'
 _CLASS_KEY = {VEHICLE: "collisions_vehicle", PEDESTRIAN: "collisions_pedestrian", STATIC: "collisions_layout"}
 _TYPE_ID = {VEHICLE: "vehicle.sumo.car", PEDESTRIAN: "walker.pedestrian.sumo", STATIC: "static.prop.obstacle"}

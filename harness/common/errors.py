@@ -1,7 +1,7 @@
 """The one exception every stage raises for bad user input.
 
 ``sumo-scimm`` prints it as one line ``sumo-scimm: error: ...`` and exits with code 2
-(harness.cli). It lives alone here, with no imports, so that any stage can raise it
+(sumo_scimm.cli). It lives alone here, with no imports, so that any stage can raise it
 without loading the CLI (and with it libsumo)."""
 
 

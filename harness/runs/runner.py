@@ -6,15 +6,15 @@ Outputs in the run folder:
     records.csv     the same as a table, rewritten (atomically) after every route
     workers.jsonl   per route run: the worker process (host, pid), how many routes it has
                     run, and its resident memory after this one [MB] (the soak figure)
-    logs/<route>_rep<k>.npz   the per-tick event log of that run (harness.episode.EpisodeLog)
+    logs/<route>_rep<k>.npz   the per-tick event log of that run (harness.loop.episode.EpisodeLog)
 
-    run.json        what the run is (the software, harness.provenance; every route run's
+    run.json        what the run is (the software, harness.runs.provenance; every route run's
                     key, seed, route, agent, agent config and its digest, rules, step
                     deadline), written when it starts (a finished run scored again by
                     ``resume`` keeps the one it has)
 
 Every route run gets its own seed, derived from the run seed, the route's place in its set
-and the repetition (harness.cli), so records do not depend on the number of workers or the
+and the repetition (sumo_scimm.cli), so records do not depend on the number of workers or the
 backend. A worker that dies (kill -9, segfault) has its route recorded as "Failed -
 Simulation crashed" with the reason; a new worker takes over and the run goes on.
 ``resume`` keeps the complete records already in ``records.jsonl`` and runs only the rest
@@ -24,7 +24,7 @@ records would be added), or whose records are not route runs of it, so a run's s
 never mix records of two runs.
 
 Backends: ``local`` (spawned worker processes, each running routes one after another) and
-``ray`` (harness.ray_backend: each route a Ray task in a fresh process); both stream the
+``ray`` (harness.runs.ray_backend: each route a Ray task in a fresh process); both stream the
 records into the same files in completion order.
 """
 from __future__ import annotations
@@ -43,12 +43,12 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from harness import criteria
-from harness.atomic import savez_atomic, signals_held, write_atomic
-from harness.episode import AGENT_TIMEOUT
-from harness.infractions import KEYS
-from harness.provenance import check_same_run, run_identity
-from harness.scoring import outside_lanes, route_record
+from harness.scoring import criteria
+from harness.common.atomic import savez_atomic, signals_held, write_atomic
+from harness.loop.episode import AGENT_TIMEOUT
+from harness.scoring.infractions import KEYS
+from harness.runs.provenance import check_same_run, run_identity
+from harness.scoring.scores import outside_lanes, route_record
 from scenarios.routefile import Route
 
 STABILITY = ("steering_jerk", "longitudinal_jerk", "curvature_variation", "speed_variation")
@@ -72,7 +72,7 @@ class Job:
     seed: int
     log_dir: str
     rules: str = "lb2.0"
-    collect_dir: str = ""  # if set, the episode is recorded there at 4 Hz (harness.collect)
+    collect_dir: str = ""  # if set, the episode is recorded there at 4 Hz (harness.expert.collect)
     route_file: str = ""
     agent_timeout: float = AGENT_TIMEOUT  # per-step deadline of run_step [s of wall time]
 
@@ -109,13 +109,13 @@ def make_record(job: Job, status: str, rc: float, length: float, game_time: floa
 
 def run_job(job: Job) -> dict:
     """Drive one route, save its log, detect infractions; returns the route record (in a worker)."""
-    from harness.episode import run_episode
-    from harness.infractions import detect
-    from harness.stability import stability
+    from harness.loop.episode import run_episode
+    from harness.scoring.infractions import detect
+    from harness.scoring.stability import stability
     from sumo_nets import load_net
     recorder = None
     if job.collect_dir:
-        from harness.collect import Recorder
+        from harness.expert.collect import Recorder
         recorder = Recorder()
     res = run_episode(job.route, job.agent, job.agent_config, job.seed,
                       on_frame=recorder.on_frame if recorder else None, agent_timeout=job.agent_timeout)
@@ -128,7 +128,7 @@ def run_job(job: Job) -> dict:
     record = make_record(job, res.status, res.rc, res.length, res.game_time, res.wall_time, res.steps,
                          res.message, infractions, stability(arrays), job.rules)
     if recorder is not None:
-        from harness.collect import save_episode
+        from harness.expert.collect import save_episode
         save_episode(Path(job.collect_dir) / f"{job.key}.npz", recorder.arrays(), job.route_file,
                      job.route.id, job.route.town, record)
     return record
@@ -290,7 +290,7 @@ def run_eval(jobs: list[Job], out: Path, workers: int | None, resume: bool, show
     After every route: records.jsonl and workers.jsonl (appended), records.csv and
     results.json (rewritten); at the end also summary.csv. ``workers`` None: every core
     (local) or every CPU of the Ray cluster."""
-    from harness.outputs import write_outputs
+    from harness.scoring.outputs import write_outputs
     identity = run_identity(jobs)
     kept = read_records(out / "records.jsonl") if resume else []
     adding = not resume or bool({j.key for j in jobs} - {r["key"] for r in kept})
@@ -298,7 +298,7 @@ def run_eval(jobs: list[Job], out: Path, workers: int | None, resume: bool, show
         check_same_run(out, identity, kept, adding)
     pool = None
     if backend == "ray":  # connect first: a cluster that cannot be reached leaves no file behind
-        from harness.ray_backend import RayPool
+        from harness.runs.ray_backend import RayPool
         pool = RayPool(address, workers)
     try:
         checkpoint = checkpoint or out / "results.json"

@@ -5,7 +5,7 @@
     summary.csv    per metric: the mean over route runs with a 95 % bootstrap interval
                    (2000 resamples of the routes, seeded: same records -> same file),
                    and the Leaderboard's per-km infraction rates
-    results.json   the Leaderboard 2.0 results file (``--checkpoint``), see harness.scoring
+    results.json   the Leaderboard 2.0 results file (``--checkpoint``), see harness.scoring.scores
 """
 from __future__ import annotations
 
@@ -16,9 +16,9 @@ from pathlib import Path
 
 import numpy as np
 
-from harness.atomic import write_atomic
-from harness.runner import RECORD_FIELDS, STABILITY
-from harness.scoring import results
+from harness.common.atomic import write_atomic
+from harness.runs.runner import RECORD_FIELDS, STABILITY
+from harness.scoring.scores import results
 
 BOOTSTRAP = 2000  # resamples
 BOOTSTRAP_SEED = 0

@@ -17,10 +17,10 @@ import numpy as np
 import pandas as pd
 
 from controller.vehicle import EgoState
-from harness.atomic import write_atomic
-from harness.bev import BevRenderer
-from harness.plan import GlobalPlan, build_plan
-from harness.world import Snapshot
+from harness.common.atomic import write_atomic
+from harness.sensors.bev import BevRenderer
+from harness.sim.plan import GlobalPlan, build_plan
+from harness.sim.world import Snapshot
 from scenarios.routefile import read_routes
 from sumo_nets import load_net
 
@@ -34,7 +34,7 @@ def _plans(route_file: str) -> dict[str, GlobalPlan]:
 
 
 class Episode:
-    """One recorded route run (arrays as written by harness.collect)."""
+    """One recorded route run (arrays as written by harness.expert.collect)."""
 
     def __init__(self, path: Path):
         with np.load(path, allow_pickle=False) as z:

@@ -4,7 +4,7 @@
 nets and shipped checkpoints), the Python version and the versions of the libraries that
 run inside the closed loop. ``run.json`` keeps it beside the route runs, with a digest of
 each agent's config file and, for an agent given as ``module:Class``, of its module file;
-``--resume`` refuses to add records to a folder started with other software (harness.runner),
+``--resume`` refuses to add records to a folder started with other software (harness.runs.runner),
 so the records of one run never mix two versions of the experiment: a new commit, another
 libsumo or another ONNX Runtime gives other trajectories (session 14 measured it for the
 runtime).
@@ -26,10 +26,10 @@ import platform
 from functools import lru_cache
 from pathlib import Path
 
-from harness.errors import BadInput
+from harness.common.errors import BadInput
 
 # the stages (SPEC §1) and the files in them that can change a record
-PACKAGES = ("scenarios", "sumo_nets", "controller", "harness", "scimm", "model")
+PACKAGES = ("scenarios", "sumo_nets", "controller", "harness", "scimm", "model", "sumo_scimm")
 SUFFIXES = (".py", ".xml", ".pt")
 # the distributions whose code runs inside the loop, the scoring or the student's export
 LIBRARIES = ("libsumo", "sumolib", "numpy", "scipy", "opencv-python-headless", "torch", "onnxruntime", "onnx",
@@ -98,7 +98,7 @@ def _agent_module(agent: str) -> str | None:
 
 
 def run_identity(jobs) -> dict:
-    """What makes the records of ``jobs`` (harness.runner.Job) what they are: the software,
+    """What makes the records of ``jobs`` (harness.runs.runner.Job) what they are: the software,
     and per route run key the seed, the route (a hash of its parsed definition), the agent
     (and, for ``module:Class``, its module file's digest), its config (an absolute path) and
     the config's digest, the rules, the step deadline and whether it records a dataset.

@@ -21,13 +21,13 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from controller.vehicle import DT, LENGTH, WIDTH, Control, EgoState, EgoVehicle
-from harness import criteria
-from harness.agent import Prediction, load_agent, split_output, validate_sensors
-from harness.contacts import overlaps
-from harness.hazard_actors import HazardActor
-from harness.plan import GlobalPlan, build_plan, to_ego
-from harness.traffic import BackgroundTraffic, RouteBubble
-from harness.world import STATIC, Snapshot, World
+from harness.scoring import criteria
+from harness.loop.agent import Prediction, load_agent, split_output, validate_sensors
+from harness.sim.contacts import overlaps
+from harness.sim.hazards import HazardActor
+from harness.sim.plan import GlobalPlan, build_plan, to_ego
+from harness.sim.traffic import BackgroundTraffic, RouteBubble
+from harness.sim.world import STATIC, Snapshot, World
 from scenarios.routefile import Route
 from sumo_nets import load_net
 
@@ -71,7 +71,7 @@ class Frame:
     snap: Snapshot
     plan: GlobalPlan
     pred: Prediction | None
-    lights: list[int]  # state of each route light (index into harness.world.TLS_CODES)
+    lights: list[int]  # state of each route light (index into harness.sim.world.TLS_CODES)
     props: list  # harness-only static boxes (x, y, yaw, length, width)
     control: Control
     agent: object  # the agent instance (the collector reads the expert's own state)
@@ -121,7 +121,7 @@ def run_episode(route: Route, agent_name: str, agent_config: str | None, seed: i
     ``on_frame(frame)`` is called with a :class:`Frame` after every tick (rendering,
     recording); it must not change the simulation.
     """
-    from harness.bev import BevRenderer  # the renderer pulls OpenCV; keep import local
+    from harness.sensors.bev import BevRenderer  # the renderer pulls OpenCV; keep import local
 
     wall0 = wallclock.perf_counter()
     loop_time = 0.0
@@ -208,7 +208,7 @@ def run_episode(route: Route, agent_name: str, agent_config: str | None, seed: i
 class Scene:
     """Everything SUMO simulates in an episode: the ego mirrored into it, the route's
     hazards, the background traffic and the route bubble. ``advance`` is the simulation's
-    half of a tick; ``harness.bench`` replays a logged ego through it to time SUMO and
+    half of a tick; ``harness.runs.bench`` replays a logged ego through it to time SUMO and
     its traffic alone."""
 
     def __init__(self, route: Route, net, plan: GlobalPlan, world: World,

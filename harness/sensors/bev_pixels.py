@@ -1,4 +1,4 @@
-"""World points and oriented boxes -> BEV pixel coordinates, compiled (``harness.bev``).
+"""World points and oriented boxes -> BEV pixel coordinates, compiled (``harness.sensors.bev``).
 
 Per frame the BEV turns the route near the ego, the red and yellow stop lines and the
 corners of every actor's box into pixels (x 16, for OpenCV's 4-bit subpixel shift). In

@@ -1,0 +1,5 @@
+"""Everything that turns an episode into numbers: route-ending criteria (``criteria``),
+Leaderboard infractions (``infractions``, ``lanes``) and scores (``scores``), stability
+metrics (``stability``), the record schema (``records``), the run folder's files
+(``outputs``), the paper's tables (``report``) and figures (``figures``). Pure functions of
+logs and records; nothing here runs the simulator."""

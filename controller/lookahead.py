@@ -7,7 +7,7 @@ resampled path, about 200 points, for one of them): the same operations on the s
 doubles in the same order, so the point is equal bit for bit
 (tests/test_student_controller.py checks it against the NumPy pair on random paths). The
 pair costs about 30 us a tick standalone, most of it the fixed cost of its NumPy calls,
-and twice that inside the closed loop; this costs about 2 us (docs/scale.md, session 17).
+and twice that inside the closed loop; this costs about 2 us (docs/scale.md).
 
 Replicated exactly:
 

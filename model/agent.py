@@ -16,7 +16,7 @@ previous tick's bit for bit gets the previous tick's outputs without running the
 again: a standing ego in a still scene. The network is a pure function of its inputs
 (same inputs, same outputs: tests/test_student_controller.py), so records do not change;
 7 % of the shipped student's ticks repeat on routes 1 and 3-7 of ``town12_short``, 18 % on
-``town12_smoke`` (docs/scale.md, session 14).
+``town12_smoke``.
 """
 from __future__ import annotations
 
@@ -39,7 +39,7 @@ def _loaded(key: tuple[str, int, int]) -> tuple[torch.nn.Module, dict, OnnxNetwo
     """The checkpoint at key[0] (key: path, mtime [ns], size), loaded and exported once per
     process: an eval worker sets up a new agent for every route, and every export (a trace
     underneath) keeps memory that is never freed (0.16-0.45 MB per export, measured with and
-    without handing freed memory back; the TorchScript trace before session 14 kept about 5 MB)."""
+    without handing freed memory back; a TorchScript trace kept about 5 MB)."""
     model, manifest = load_checkpoint(key[0])
     return model, manifest, OnnxNetwork(model)
 

@@ -44,10 +44,6 @@ class LossWeights:
         if min(self.origin, self.scimm, self.mode) < 0:
             raise ValueError(f"loss weights must be >= 0, got {self}")
 
-    @property
-    def uses_teacher(self) -> bool:
-        return self.scimm > 0 or self.mode > 0
-
 
 BASELINE = LossWeights(scimm=0.0, mode=0.0)
 

@@ -162,6 +162,7 @@ class Student(nn.Module):
             x = block(x, vis)  # attending to each other and to vis (B, 64, D)
         out = self.norm(x[:, -(cfg.n_path + cfg.n_speed):])  # (B, 30, D) query outputs
         path_q, speed_q = out[:, :cfg.n_path], out[:, cfg.n_path:]
+        # paper eq. 1: the prediction Y^ = {P^, V^}, a path and speed waypoints (V^ = phi(W^), eq. 12)
         return {
             "path": torch.cumsum(self.path_head(path_q), dim=1),  # (B, 20, 2) [m]
             "speed_wps": torch.cumsum(self.speed_head(speed_q), dim=1),  # (B, 10, 2) [m]

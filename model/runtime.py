@@ -4,9 +4,9 @@ Training runs in torch (model.train); driving runs the same network, exported in
 batch 1 with torch's ONNX exporter and executed by ONNX Runtime on one thread. Why: the
 network is small (about 3 M multiply-adds a frame), so in torch its cost is the dispatch of
 about 100 ATen calls, not their arithmetic: 0.76-0.88 ms a frame in a TorchScript trace on
-this project's 2-core machine against 0.26 ms in ONNX Runtime, which fuses the graph and
+a 2-core Intel Xeon against 0.26 ms in ONNX Runtime, which fuses the graph and
 runs it without per-operator Python or dispatcher overhead (docs/student.md, the
-inference paragraph; docs/scale.md, "Session 14").
+inference paragraph).
 
 The exported graph computes the eager module's function in float32 with other kernels, so
 its outputs differ from the eager module's by rounding only: a few 1e-6 m (up to 4.8e-6 m

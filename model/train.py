@@ -17,8 +17,8 @@ repeated frame keeps its view and cut within the epoch.
 Data balance: 38 % of the recorded frames show the expert standing and still standing 2.5 s
 later (red lights, stop signs, queues), 6 % standing and then starting off. A student
 without memory cannot tell "just arrived" from "waited long enough", learns to stay once
-stopped and never starts again (seen in closed loop: the first students stood 55-76 % of
-the time, in runs cut only by the 40 s creep rule). So each epoch draws:
+stopped and never starts again (in closed loop, a student trained on every frame stands
+55-76 % of the time and moves only when the 40 s creep rule fires). So each epoch draws:
 - no standing-and-staying frame while the expert waits at a stop sign (a third of them):
   from one BEV the wait is pure ambiguity, while the frames that approach the sign (moving)
   still teach the student to stop there and the speed input then tells it it has stopped;
@@ -161,7 +161,10 @@ def make_optimizer(model: Student) -> torch.optim.AdamW:
 
 
 def train(cfg: TrainConfig) -> Path:
-    """Train one student; returns the model checkpoint file (``cfg.out/student.pt``)."""
+    """Train one student; returns the model checkpoint file (``cfg.out/student.pt``).
+
+    One function on purpose, as nanoGPT's train.py: the story (seed, data, model and
+    optimizer, loop, save) reads top to bottom, its steps in small helpers above."""
     t0 = time.perf_counter()
     # seed: the network's initial weights come from torch's global generator,
     # seeded here (torch.nn layers take no generator); every other draw from rng below

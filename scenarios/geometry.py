@@ -172,34 +172,9 @@ def trace(net: sumolib.net.Net, edges: list[str], depart_pos: float,
     Raises RouteError naming the first problem (unknown edge, edges not connected for
     cars, positions outside the lane).
     """
-    if not edges:
-        raise RouteError("the route has no edges")
-    objs = []
-    for e in edges:
-        if not net.hasEdge(e) or net.getEdge(e).getFunction():
-            raise RouteError(f"edge {e!r} is not a road of this town")
-        objs.append(net.getEdge(e))
-    conns = []
-    entry = None
-    for a, b in zip(objs, objs[1:]):
-        cs = [c for c in a.getConnections(b) if _driving(c.getFromLane()) and _driving(c.getToLane())]
-        if not cs:
-            raise RouteError(f"edges {a.getID()} and {b.getID()} are not connected")
-        c = _choose(cs, entry)
-        conns.append(c)
-        entry = c.getToLane().getIndex()
-    # lane of each edge at its start and end
-    lanes_in, lanes_out = [], []
-    for i, e in enumerate(objs):
-        out = conns[i].getFromLane() if i < len(conns) else None
-        inn = conns[i - 1].getToLane() if i > 0 else out
-        if inn is None:  # one-edge route
-            inn = next((ln for ln in e.getLanes() if _driving(ln)), None)
-            if inn is None:
-                raise RouteError(f"edge {e.getID()} has no lane for cars")
-        lanes_in.append(inn)
-        lanes_out.append(out if out is not None else inn)
-
+    objs = _edges(net, edges)
+    conns = _connections(objs)
+    lanes_in, lanes_out = _end_lanes(objs, conns)
     pieces, legs, passages = [], [], []
     s = 0.0
     for i, e in enumerate(objs):
@@ -228,6 +203,55 @@ def trace(net: sumolib.net.Net, edges: list[str], depart_pos: float,
             passages.append(Passage(node.getID(), node.getType(), c.getDirection(), c.getState(),
                                     c.getTLSID() or "", c.getTLLinkIndex() if c.getTLSID() else -1,
                                     e.getID(), objs[i + 1].getID(), s_in, s))
+    return _resample(pieces, legs, passages, s)
+
+
+def _edges(net: sumolib.net.Net, edges: list[str]) -> list[sumolib.net.edge.Edge]:
+    """The net's edges of a route, each checked to be a road (not internal, not a crossing)."""
+    if not edges:
+        raise RouteError("the route has no edges")
+    objs = []
+    for e in edges:
+        if not net.hasEdge(e) or net.getEdge(e).getFunction():
+            raise RouteError(f"edge {e!r} is not a road of this town")
+        objs.append(net.getEdge(e))
+    return objs
+
+
+def _connections(objs: list) -> list[sumolib.net.connection.Connection]:
+    """The car connection used between each pair of consecutive edges, staying in the
+    lane the last one entered on where it can (``_choose``)."""
+    conns = []
+    entry = None
+    for a, b in zip(objs, objs[1:]):
+        cs = [c for c in a.getConnections(b) if _driving(c.getFromLane()) and _driving(c.getToLane())]
+        if not cs:
+            raise RouteError(f"edges {a.getID()} and {b.getID()} are not connected")
+        c = _choose(cs, entry)
+        conns.append(c)
+        entry = c.getToLane().getIndex()
+    return conns
+
+
+def _end_lanes(objs: list, conns: list) -> tuple[list, list]:
+    """The lane of each edge at its start and at its end (those of the connections)."""
+    lanes_in, lanes_out = [], []
+    for i, e in enumerate(objs):
+        out = conns[i].getFromLane() if i < len(conns) else None
+        inn = conns[i - 1].getToLane() if i > 0 else out
+        if inn is None:  # one-edge route
+            inn = next((ln for ln in e.getLanes() if _driving(ln)), None)
+            if inn is None:
+                raise RouteError(f"edge {e.getID()} has no lane for cars")
+        lanes_in.append(inn)
+        lanes_out.append(out if out is not None else inn)
+    return lanes_in, lanes_out
+
+
+def _resample(pieces: list[np.ndarray], legs: list[Leg], passages: list[Passage], s: float) -> RoutePath:
+    """The route from its polyline pieces (lanes and junction lanes, in order) resampled
+    every SPACING m; legs and passages carry route s measured on the pieces, s is their
+    total length [m]."""
     raw = np.vstack(pieces)
     keep = np.concatenate(([True], np.hypot(*np.diff(raw, axis=0).T) > 1e-9))
     raw = raw[keep]

@@ -98,8 +98,6 @@ HAZARDS: dict[str, HazardType] = {h.name: h for h in (
                "a left turn that must yield to oncoming traffic", (_distance(25, 70), JUNCTION, FLOW)),
 )}
 
-JUNCTION_TYPES = ("SignalizedJunction", "StopSignJunction", "UnprotectedLeftTurn")
-
 
 def check_params(kind: str, params: dict[str, str]) -> str | None:
     """None if the hazard type and its parameters are valid, else the reason."""

@@ -9,6 +9,7 @@ from pathlib import Path
 from tqdm import tqdm
 
 from harness.common.errors import BadInput
+from sumo_scimm.options import EXIT_BAD_INPUT, seed_arg
 
 
 # --- nets -------------------------------------------------------------------------------
@@ -52,7 +53,6 @@ def _routes_make(args: argparse.Namespace) -> int:
 
 
 def _routes_check(args: argparse.Namespace) -> int:
-    from sumo_scimm.cli import EXIT_BAD_INPUT
     from scenarios.check import check_file
     n, problems = check_file(Path(args.file))
     for p in problems:
@@ -72,7 +72,6 @@ def _routes_show(args: argparse.Namespace) -> int:
 
 def register(sub: argparse._SubParsersAction) -> None:
     """Add ``nets build|show`` and ``routes make|check|show``."""
-    from sumo_scimm.cli import seed_arg
     nets = sub.add_parser("nets", help="build or describe the town networks")
     nsub = nets.add_subparsers(dest="action", required=True, parser_class=type(nets))
     b = nsub.add_parser("build", help="rebuild town nets with netconvert (seeded, reproducible)")

@@ -28,7 +28,9 @@ def _cli(argv: list[str]) -> tuple[int, str]:
 
 def _one_line_exit_2(code: int, printed: str, *words: str) -> None:
     lines = [ln for ln in printed.splitlines() if ln.strip()]
-    assert code == 2 and len(lines) == 1 and lines[0].startswith("sumo-scimm: error: "), printed
+    assert code == 2, printed
+    assert len(lines) == 1, printed
+    assert lines[0].startswith("sumo-scimm: error: "), printed
     assert "Traceback" not in printed
     for w in words:
         assert w in lines[0], (w, lines[0])
@@ -69,7 +71,7 @@ def test_resume_refuses_a_folder_that_holds_another_run(one_route_run, tmp_path,
     assert _tree(out) == before
 
 
-def test_resume_of_a_folder_from_before_run_json_checks_its_records(one_route_run, tmp_path):
+def test_resume_of_a_folder_without_run_json_checks_its_records(one_route_run, tmp_path):
     out = tmp_path / "run"
     shutil.copytree(one_route_run, out)
     (out / "run.json").unlink()
@@ -78,7 +80,8 @@ def test_resume_of_a_folder_from_before_run_json_checks_its_records(one_route_ru
     # the same options: nothing left to run, the scores are printed again; no run.json is
     # written, as it would name software that made none of the records
     code, printed = _cli([*SMOKE_ROUTE, "--out", str(out), "--resume"])
-    assert code == 0 and "1 routes ->" in printed, printed
+    assert code == 0, printed
+    assert "1 routes ->" in printed, printed
     assert not (out / "run.json").exists()
     # with a route left to run: refused, the records' software is unknown
     code, printed = _cli([*SMOKE_TWO, "--out", str(out), "--resume"])
@@ -128,10 +131,12 @@ def test_a_finished_run_is_scored_again_by_other_software_and_keeps_its_run_json
     out = tmp_path / "run"
     identity = _with_software(one_route_run, out, "code", "0123456789abcdef")
     code, printed = _cli([*SMOKE_ROUTE, "--out", str(out), "--resume"])
-    assert code == 0 and "1 routes ->" in printed, printed
+    assert code == 0, printed
+    assert "1 routes ->" in printed, printed
     assert json.loads((out / "run.json").read_text()) == identity
 
 
+@pytest.mark.slow
 def test_a_run_without_a_record_yet_starts_again_with_other_software(half_run, tmp_path):
     """Stopped before its first route ended: no record would mix, so it runs, and its
     run.json then names the software that made all of its records."""
@@ -139,9 +144,10 @@ def test_a_run_without_a_record_yet_starts_again_with_other_software(half_run, t
     _with_software(half_run, out, "code", "0123456789abcdef")
     (out / "records.jsonl").write_text("")
     code, printed = _cli([*SMOKE_TWO, "--out", str(out), "--resume"])
-    assert code == 0 and "2 routes ->" in printed, printed
+    assert code == 0, printed
+    assert "2 routes ->" in printed, printed
     assert json.loads((out / "run.json").read_text()) == json.loads((half_run / "run.json").read_text())
-    # the same for a run.json from before session 15 (no software named)
+    # the same for a run.json of the older layout, which names no software (no *_digest fields)
     old = tmp_path / "old"
     shutil.copytree(half_run, old)
     runs = json.loads((old / "run.json").read_text())["route_runs"]
@@ -149,13 +155,14 @@ def test_a_run_without_a_record_yet_starts_again_with_other_software(half_run, t
                                               for k, r in runs.items()}))
     (old / "records.jsonl").write_text("")
     code, printed = _cli([*SMOKE_TWO, "--out", str(old), "--resume"])
-    assert code == 0 and "2 routes ->" in printed, printed
+    assert code == 0, printed
+    assert "2 routes ->" in printed, printed
     assert json.loads((old / "run.json").read_text()) == json.loads((half_run / "run.json").read_text())
 
 
 def test_resume_refuses_a_run_json_that_does_not_name_its_software(half_run, one_route_run, tmp_path):
-    """run.json before session 15: the route runs alone, at the top level. With a route left
-    to run: refused; finished: scored again, its options still checked."""
+    """A run.json of the older layout names no software: the route runs alone, at the top
+    level. With a route left to run: refused; finished: scored again, its options still checked."""
     for src, name in ((half_run, "half"), (one_route_run, "done")):
         out = tmp_path / name
         shutil.copytree(src, out)
@@ -167,7 +174,8 @@ def test_resume_refuses_a_run_json_that_does_not_name_its_software(half_run, one
     _one_line_exit_2(code, printed, "did not record its software", "start the run afresh")
     assert _tree(tmp_path / "half") == before
     code, printed = _cli([*SMOKE_ROUTE, "--out", str(tmp_path / "done"), "--resume"])
-    assert code == 0 and "1 routes ->" in printed, printed
+    assert code == 0, printed
+    assert "1 routes ->" in printed, printed
     code, printed = _cli([*SMOKE_ROUTE, "--seed", "3", "--out", str(tmp_path / "done"), "--resume"])
     _one_line_exit_2(code, printed, "holds another run", "seed")
 
@@ -187,6 +195,7 @@ def test_resume_of_a_damaged_run_json_is_one_line(half_run, tmp_path, damage, wo
     assert _tree(out) == before
 
 
+@pytest.mark.slow
 def test_resume_refuses_a_checkpoint_that_changed_under_the_same_path(tmp_path):
     """A student retrained into the same file drives otherwise: its records are another run's."""
     from model.agent import SHIPPED
@@ -226,7 +235,8 @@ def test_unwritable_outputs_are_one_line_and_leave_nothing(one_route_run, tmp_pa
     code, printed = _cli(["report", str(one_route_run), "--out", str(blocker / "report")])
     _one_line_exit_2(code, printed, str(blocker))
     assert sorted(p.name for p in tmp_path.iterdir()) == ["a_file", "a_folder"]
-    assert blocker.read_text() == "x" and not list(folder.iterdir())
+    assert blocker.read_text() == "x", "the file in the way was changed"
+    assert not list(folder.iterdir()), "a refused score wrote into its output folder"
 
 
 def test_an_agent_that_cannot_be_built_is_bad_input(tmp_path):
@@ -280,7 +290,7 @@ def test_data_show_on_damaged_or_empty_datasets(tmp_path):
 def test_agent_may_be_a_student_checkpoint_path(tmp_path):
     """SPEC §3: ``--agent PATH.pt`` is the student agent with that checkpoint; a missing
     file, or a different --agent-config beside it, is one line."""
-    from sumo_scimm.cli import check_agent
+    from harness.loop.agent import check_agent
     ckpt = Path(__file__).resolve().parents[1] / "model" / "checkpoints" / "scimm" / "student.pt"
     assert check_agent(str(ckpt), None) == ("student", str(ckpt))
     assert check_agent(str(ckpt), str(ckpt)) == ("student", str(ckpt))
@@ -300,7 +310,8 @@ def test_render_draws_the_waypoint_overlay_of_eval_runs(one_route_run, tmp_path)
     are one line and write nothing."""
     out = tmp_path / "fig5.png"
     code, printed = _cli(["render", "--route", "0", "--runs", str(one_route_run), "--out", str(out)])
-    assert code == 0 and out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n", printed
+    assert code == 0, printed
+    assert out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n", printed
     for argv, words in ((["--route", "1", "--runs", str(one_route_run), "--out", str(tmp_path / "b.png")],
                          ["no log of route 1"]),
                         (["--route", "0", "--runs", str(one_route_run), "--out", str(tmp_path / "b.mp4")],

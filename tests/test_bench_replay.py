@@ -1,4 +1,4 @@
-"""The bench's bare-libsumo reference steps the traffic the harness stepped (issue #9): the
+"""The bench's bare-libsumo reference steps the traffic the harness stepped: the
 replay of a logged ego through ``harness.loop.episode.Scene`` reproduces the episode's traffic,
 and its check tells another traffic apart; a call between steps is timed apart from SUMO.
 Real libsumo; no performance figure is asserted."""
@@ -21,13 +21,17 @@ def test_the_replay_reproduces_the_episode_traffic_and_tells_another_seed_apart(
     bg = res.log.columns["bg_speed"]
     assert sum(not math.isnan(v) for v in bg) > len(bg) // 2  # the check has speeds to compare
     ms, same, between_ms = _bare_step_ms(route, seed, res.log)
-    assert same and ms > 0.0 and math.isnan(between_ms)  # nothing ran between the steps
+    assert same, "the bare replay drove other traffic than the episode"
+    assert ms > 0.0
+    assert math.isnan(between_ms)  # nothing ran between the steps
     _, same_other, _ = _bare_step_ms(route, seed + 1, res.log)  # another seed: other traffic
     assert not same_other
     # with a call between steps: its own time is returned per tick, apart from SUMO's (a
     # 5 ms sleep: at least 5 ms a tick there, none of it in SUMO's figure, which is about
-    # 0.1-0.5 ms here), and the traffic is still the episode's (the call cannot reach SUMO)
+    # 0.1-0.5 ms), and the traffic is still the episode's (the call cannot reach SUMO)
     calls = []
     ms, same, between_ms = _bare_step_ms(route, seed, res.log,
                                          between=lambda: (calls.append(1), time.sleep(0.005)))
-    assert same and 0.0 < ms < 5.0 <= between_ms and len(calls) == len(bg)
+    assert same, "with a call between the steps, the replay drove other traffic"
+    assert 0.0 < ms < 5.0 <= between_ms, (ms, between_ms)
+    assert len(calls) == len(bg)

@@ -17,7 +17,7 @@ from sumo_nets import load_net
 
 
 def numpy_corners(xy: np.ndarray, yaw: np.ndarray, size: np.ndarray) -> np.ndarray:
-    """(K, 4, 2) box corners, as harness.sensors.bev computed them in NumPy before session 17."""
+    """(K, 4, 2) box corners by the plain NumPy formula: the reference for boxes_to_pixels."""
     c, s = np.cos(yaw)[:, None], np.sin(yaw)[:, None]
     dx = np.array([1.0, 1.0, -1.0, -1.0]) * (size[:, 0] / 2)[:, None]
     dy = np.array([1.0, -1.0, -1.0, 1.0]) * (size[:, 1] / 2)[:, None]
@@ -31,7 +31,7 @@ def numpy_corners(xy: np.ndarray, yaw: np.ndarray, size: np.ndarray) -> np.ndarr
 
 
 def numpy_pixels(pts: np.ndarray, ex: float, ey: float, yaw: float) -> np.ndarray:
-    """World points -> BEV pixels x 16, as harness.sensors.bev computed them in NumPy before session 17."""
+    """World points -> BEV pixels x 16 by the plain NumPy formula: the reference for points_to_pixels."""
     c, s = math.cos(yaw), math.sin(yaw)
     d = np.asarray(pts, dtype=float) - (ex, ey)
     dx, dy = d[:, 0], d[:, 1]

@@ -34,7 +34,8 @@ def _one_line(output: str) -> str:
 
 def test_valid_file_passes(capsys):
     code, out = _run(capsys, "routes", "check", str(set_path("town12_smoke")))
-    assert code == 0 and "4 routes OK" in out
+    assert code == 0, out
+    assert "4 routes OK" in out
 
 
 def test_malformed_xml(tmp_path, capsys):
@@ -47,7 +48,9 @@ def test_unknown_town(tmp_path, capsys):
     text = SMOKE.replace('<route id="2" town="town12">', '<route id="2" town="town99">')
     code, out = _run(capsys, "routes", "check", _bad(tmp_path, text))
     line = _one_line(out)
-    assert code == 2 and "route 2:" in line and "unknown town 'town99'" in line
+    assert code == 2, out
+    assert "route 2:" in line
+    assert "unknown town 'town99'" in line
 
 
 def test_disconnected_route(tmp_path, capsys):
@@ -56,22 +59,28 @@ def test_disconnected_route(tmp_path, capsys):
     assert text != SMOKE
     code, out = _run(capsys, "routes", "check", _bad(tmp_path, text))
     line = _one_line(out)
-    assert code == 2 and "route 1:" in line and "not connected" in line
+    assert code == 2, out
+    assert "route 1:" in line
+    assert "not connected" in line
 
 
 def test_unknown_hazard_type(tmp_path, capsys):
     text = SMOKE.replace('type="ParkedObstacle"', 'type="FlyingSaucer"')
     code, out = _run(capsys, "routes", "check", _bad(tmp_path, text))
     line = _one_line(out)
-    assert code == 2 and "route 3:" in line and "unknown hazard type 'FlyingSaucer'" in line
+    assert code == 2, out
+    assert "route 3:" in line
+    assert "unknown hazard type 'FlyingSaucer'" in line
 
 
 def test_length_outside_set_bounds(tmp_path, capsys):
     text = SMOKE.replace('max_length="220"', 'max_length="150"')
     code, out = _run(capsys, "routes", "check", _bad(tmp_path, text))
     lines = out.splitlines()
-    assert code == 2 and len(lines) == 2  # routes 0 and 2 (164.5 and 159.25 m) are longer than 150 m
-    assert "route 0: length 164.5 m" in lines[0] and "route 2: length 159.2 m" in lines[1]
+    assert code == 2, out
+    assert len(lines) == 2, out  # routes 0 and 2 (164.5 and 159.25 m) are longer than 150 m
+    assert "route 0: length 164.5 m" in lines[0]
+    assert "route 2: length 159.2 m" in lines[1]
     assert all("is outside the set's bounds [120, 150] m" in ln for ln in lines)
 
 
@@ -80,23 +89,29 @@ def test_entity_expansion_is_refused(tmp_path, capsys):
             '<!ENTITY b "&a;&a;&a;&a;&a;&a;&a;&a;&a;&a;"><!ENTITY c "&b;&b;&b;&b;&b;&b;&b;&b;&b;&b;">]>\n'
             '<routes><route id="&c;" town="town12"/></routes>\n')
     code, out = _run(capsys, "routes", "check", _bad(tmp_path, bomb))
-    assert code == 2 and "refused" in _one_line(out)
+    assert code == 2, out
+    assert "refused" in _one_line(out)
 
 
 def test_missing_file_and_unknown_set_and_town(capsys, tmp_path):
     code, out = _run(capsys, "routes", "check", str(tmp_path / "nope.xml"))
-    assert code == 2 and "no such route file" in _one_line(out)
+    assert code == 2, out
+    assert "no such route file" in _one_line(out)
     code, out = _run(capsys, "routes", "show", "town13_short")
-    assert code == 2 and "unknown route set 'town13_short'" in _one_line(out)
+    assert code == 2, out
+    assert "unknown route set 'town13_short'" in _one_line(out)
     code, out = _run(capsys, "nets", "show", "--town", "town99")
-    assert code == 2 and "unknown town 'town99'" in _one_line(out)
+    assert code == 2, out
+    assert "unknown town 'town99'" in _one_line(out)
     code, out = _run(capsys, "routes", "make", "--set", "nonsense")
-    assert code == 2 and "unknown set 'nonsense'" in _one_line(out)
+    assert code == 2, out
+    assert "unknown set 'nonsense'" in _one_line(out)
 
 
 def test_bad_option_is_one_line(capsys):
     code, out = _run(capsys, "nets", "build", "--seed", "abc")
-    assert code == 2 and "invalid int value" in _one_line(out)
+    assert code == 2, out
+    assert "invalid int value" in _one_line(out)
 
 
 @settings(max_examples=40, deadline=None)
@@ -112,5 +127,6 @@ def test_any_damaged_file_gives_lines_and_exit_2_never_a_traceback(tmp_path_fact
     if "</routes>" not in SMOKE[:cut]:
         assert code == 2
     lines = buf.getvalue().splitlines()
-    assert lines and all(ln.startswith(str(p)) or ln.startswith("sumo-scimm: error") for ln in lines)
+    assert lines, "check printed nothing"
+    assert all(ln.startswith(str(p)) or ln.startswith("sumo-scimm: error") for ln in lines), buf.getvalue()
     assert "Traceback" not in buf.getvalue()

@@ -1,5 +1,6 @@
-"""The CLI turns NumPy's transparent huge pages off before NumPy loads (docs/teacher.md: the
-IMM runs faster without them here), and keeps a value the user set."""
+"""The CLI turns NumPy's transparent huge pages off before NumPy loads (docs/teacher.md: with
+THP on madvise, they made the IMM slower and its timing erratic), and keeps a value the user
+set."""
 from __future__ import annotations
 
 import os

@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 
 from controller.vehicle import LENGTH, EgoState
-from harness import bev as B
+from harness.sensors import bev as B
 from sumo_scimm.cli import main
 from harness.loop.episode import run_episode
 from harness.sim.plan import build_plan
@@ -113,10 +113,12 @@ def test_a_walker_that_has_crossed_is_gone_not_left_to_sumo():
         present_at_end[:] = [i for i in libsumo.person.getIDList() if i.startswith("ped_hz")]
 
     res = run_episode(route, "route_follower", None, seed=2, on_frame=on_frame)
-    assert res.status == "Completed" and len(track) == int(route.hazards[0].params["walkers"])
+    assert res.status == "Completed"
+    assert len(track) == int(route.hazards[0].params["walkers"])
     assert present_at_end == []
     # the world view reports the walking speed (SUMO says 0 for a walker moved by moveToXY)
-    assert speeds and set(speeds) == {float(route.hazards[0].params["speed"])}
+    assert speeds, "no walker was ever seen"
+    assert set(speeds) == {float(route.hazards[0].params["speed"])}
     for pid, pts in track.items():
         pts = np.array(pts)
         u = (pts[-1] - pts[0]) / np.linalg.norm(pts[-1] - pts[0])
@@ -163,9 +165,12 @@ def test_a_repeated_scene_gets_its_last_frame_and_any_change_is_drawn_anew(monke
 
     first = renderer.render(*scene())
     again = renderer.render(*scene())  # equal inputs in new objects: no new drawing
-    assert len(drawn) == 1 and np.array_equal(again, first) and again is not first
+    assert len(drawn) == 1, "equal inputs were drawn again"
+    assert np.array_equal(again, first)
+    assert again is not first, "the kept frame itself was handed out"
     again[:] = 0  # the caller owns what it gets: the kept frame is not touched
-    assert np.array_equal(renderer.render(*scene()), first) and len(drawn) == 1
+    assert np.array_equal(renderer.render(*scene()), first), "the caller's write reached the kept frame"
+    assert len(drawn) == 1
     changes = [scene(ahead=10.0), scene(cls=B.STATIC), scene(ego_yaw=yaw + 0.3),
                scene(props=[(x + 8 * math.cos(yaw), y + 8 * math.sin(yaw), yaw, 4.6, 1.9)]),
                scene(lights=[0, 0]),  # the route's two lights red
@@ -174,10 +179,12 @@ def test_a_repeated_scene_gets_its_last_frame_and_any_change_is_drawn_anew(monke
         assert np.array_equal(renderer.render(*scene()), first)
         n = len(drawn)
         out = renderer.render(*inputs)
-        assert len(drawn) == n + 1 and np.array_equal(out, draw(*inputs))
+        assert len(drawn) == n + 1
+        assert np.array_equal(out, draw(*inputs))
         assert not np.array_equal(out, first)  # each change shows in the picture
 
 
+@pytest.mark.slow
 def test_smoke_run_on_two_workers_and_determinism(tmp_path, capsys):
     """The CI smoke run (town12_smoke on 2 workers), and the same run on 1 worker gives the
     same records and logs (wall time aside)."""
@@ -190,7 +197,8 @@ def test_smoke_run_on_two_workers_and_determinism(tmp_path, capsys):
     assert (two / "records.csv").read_text().count("\n") == 5
     assert (two / "summary.csv").is_file()
     written = json.loads((two / "results.json").read_text())
-    assert written["entry_status"] == "Finished" and written["_checkpoint"]["progress"] == [4, 4]
+    assert written["entry_status"] == "Finished"
+    assert written["_checkpoint"]["progress"] == [4, 4]
     assert rescore_results(written) == written  # the global record equals what `score` recomputes
     other = {r["key"]: r for r in _records(one)}
     for key, r in recs.items():
@@ -206,8 +214,12 @@ def test_smoke_run_on_two_workers_and_determinism(tmp_path, capsys):
     capsys.readouterr()
     assert main(["report", str(two), str(one), "--out", str(tmp_path / "report")]) == 0
     printed = capsys.readouterr().out
-    assert "Table 3" in printed and "Table 4" in printed and "| two |" in printed and "| one |" in printed
-    assert (tmp_path / "report" / "table3.csv").is_file() and (tmp_path / "report" / "table4.md").is_file()
+    assert "Table 3" in printed
+    assert "Table 4" in printed
+    assert "| two |" in printed
+    assert "| one |" in printed
+    assert (tmp_path / "report" / "table3.csv").is_file()
+    assert (tmp_path / "report" / "table4.md").is_file()
 
 
 def test_agent_crash_and_nan_fail_their_route_and_the_run_goes_on(tmp_path, capsys):
@@ -215,9 +227,12 @@ def test_agent_crash_and_nan_fail_their_route_and_the_run_goes_on(tmp_path, caps
     assert main(["eval", "--routes", "town12_smoke", "--agent", "tests.agents:FaultyFollower",
                  "--workers", "2", "--out", str(out)]) == 0
     recs = {r["route_id"]: r for r in _records(out)}
-    assert recs["0"]["episode_status"] == "Completed" and recs["3"]["episode_status"] == "Completed"
-    assert recs["1"]["status"] == "Failed - Agent crashed" and "on purpose" in recs["1"]["message"]
-    assert recs["2"]["status"] == "Failed - Agent crashed" and "non-finite" in recs["2"]["message"]
+    assert recs["0"]["episode_status"] == "Completed"
+    assert recs["3"]["episode_status"] == "Completed"
+    assert recs["1"]["status"] == "Failed - Agent crashed"
+    assert "on purpose" in recs["1"]["message"]
+    assert recs["2"]["status"] == "Failed - Agent crashed"
+    assert "non-finite" in recs["2"]["message"]
 
 
 def test_killed_worker_is_recorded_and_the_run_completes(tmp_path, capsys, monkeypatch):
@@ -228,10 +243,12 @@ def test_killed_worker_is_recorded_and_the_run_completes(tmp_path, capsys, monke
     recs = _records(out)
     assert sorted(r["route_id"] for r in recs) == ["0", "1", "2", "3"]
     dead = [r for r in recs if r["route_id"] == "3"][0]
-    assert dead["status"] == "Failed - Simulation crashed" and "exit code -9" in dead["message"]
+    assert dead["status"] == "Failed - Simulation crashed"
+    assert "exit code -9" in dead["message"]
     assert [r for r in recs if r["route_id"] == "0"][0]["episode_status"] == "Completed"
 
 
+@pytest.mark.slow
 def test_resume_after_a_killed_run_neither_repeats_nor_loses_a_route(tmp_path, capsys):
     out = tmp_path / "run"
     cmd = [sys.executable, "-m", "sumo_scimm.cli", "eval", "--routes", "town12_smoke", "--agent", "expert",
@@ -258,16 +275,17 @@ def test_existing_run_needs_resume(tmp_path, capsys):
     out.mkdir()
     (out / "records.jsonl").write_text('{"key": "0_rep0"}\n')
     code = main(["eval", "--routes", "town12_smoke", "--out", str(out)])
-    assert code == 2 and "--resume" in capsys.readouterr().err
+    assert code == 2
+    assert "--resume" in capsys.readouterr().err
 
 
 @pytest.mark.parametrize("rid", ["40", "50"])
 def test_the_hard_braking_leader_appears_gap_ahead_of_the_ego(short_routes, rid):
-    """Route 40: gap m past the trigger lies inside a junction (the leader was never
-    spawned); route 50: SUMO deferred the insertion and the leader appeared 1.5 s later
-    beside the ego, in the lane the route had left. Now it enters the ego's lane about
-    ``gap`` m ahead of it, as soon as there is such a place (each failed before its fix)."""
-    from harness.runs.runner import route_seed
+    """The leader enters the ego's lane about ``gap`` m ahead of it, as soon as there is such
+    a place. The two hard cases: on route 40, gap m past the trigger lies inside a junction
+    (a leader placed there is never spawned); on route 50, SUMO can defer the insertion, and
+    a deferred leader appears 1.5 s later beside the ego, in the lane the route has left."""
+    from harness.runs.jobs import route_seed
 
     idx = next(i for i, r in enumerate(short_routes) if r.id == rid)
     route = short_routes[idx]
@@ -284,14 +302,16 @@ def test_the_hard_braking_leader_appears_gap_ahead_of_the_ego(short_routes, rid)
                 first.append((s_leader - s_ego, off))
 
     res = run_episode(route, "expert", None, route_seed(0, idx), on_frame=on_frame)
-    assert res.status == "Completed" and first, "the leader never appeared"
+    assert res.status == "Completed"
+    assert first, "the leader never appeared"
     ahead, off = first[0]
     # its front is placed gap m ahead of the ego's centre, so its centre (4.6 m long) 2.3 m
     # less; by the first frame that sees it, either has driven up to one tick (0.7 m at
     # 14 m/s), and its projection onto the route, 1.7 m off it, may move by 0.1 m. Measured:
     # gap - 2.21 (route 40), gap - 2.92 (route 50: the ego drove 0.6 m more than the leader).
     # It is on the lane nearest the route (route 50 is mid-way through a lane change there: 1.7 m)
-    assert gap - 3.1 < ahead < gap - 1.6 and off < 2.0, (ahead, off)
+    assert gap - 3.1 < ahead < gap - 1.6, (ahead, off)
+    assert off < 2.0, (ahead, off)
 
 
 def test_bev_rendering_starts_no_helper_threads():
@@ -305,7 +325,7 @@ def test_bev_rendering_starts_no_helper_threads():
     code = """
 import math, os, numpy as np
 from controller.vehicle import EgoState
-from harness import bev as B
+from harness.sensors import bev as B
 from harness.sim.plan import build_plan
 from harness.sim.world import Snapshot
 from scenarios import set_path

@@ -1,4 +1,4 @@
-"""Each Leaderboard criterion provoked once and avoided once, in real libsumo (issue 4):
+"""Each Leaderboard criterion provoked once and avoided once, in real libsumo:
 the episode runs, then detection reads its log, as in `sumo-scimm eval`."""
 from __future__ import annotations
 
@@ -28,16 +28,20 @@ def _run(route, agent, seed=0, config=None):
 
 def test_red_light_run_and_respected():
     _, ev = _run(SMOKE[0], "route_follower")
-    assert len(ev["red_light"]) == 1 and ev["red_light"][0].startswith("Agent ran a red light ")
+    assert len(ev["red_light"]) == 1
+    assert ev["red_light"][0].startswith("Agent ran a red light ")
     res, ev = _run(SMOKE[0], "tests.agents:LightStopper")
-    assert res.status == "Completed" and ev["red_light"] == []
+    assert res.status == "Completed"
+    assert ev["red_light"] == []
 
 
 def test_stop_sign_rolled_and_respected():
     _, ev = _run(SMOKE[1], "route_follower")
-    assert len(ev["stop_infraction"]) == 1 and ev["stop_infraction"][0].startswith("Agent ran a stop with id=")
+    assert len(ev["stop_infraction"]) == 1
+    assert ev["stop_infraction"][0].startswith("Agent ran a stop with id=")
     res, ev = _run(SMOKE[1], "tests.agents:StopSignStopper")
-    assert res.status == "Completed" and ev["stop_infraction"] == []
+    assert res.status == "Completed"
+    assert ev["stop_infraction"] == []
 
 
 def test_pedestrian_hit_while_moving_is_counted_once():
@@ -89,16 +93,19 @@ def test_leaving_the_road_and_staying_in_lane():
     assert len(ev["outside_route_lanes"]) == 1
     assert ev["outside_route_lanes"][0].startswith("Agent went outside its route lanes for about ")
     assert res.status == "Failed - Agent deviated from the route"
-    assert len(ev["route_dev"]) == 1 and ev["route_dev"][0].startswith("Agent deviated from the route at (x=")
+    assert len(ev["route_dev"]) == 1
+    assert ev["route_dev"][0].startswith("Agent deviated from the route at (x=")
     _, ev = _run(SMOKE[3], "route_follower")
-    assert ev["outside_route_lanes"] == [] and ev["route_dev"] == []
+    assert ev["outside_route_lanes"] == []
+    assert ev["route_dev"] == []
 
 
 def test_standing_still_past_the_blocked_limit():
     res, ev = _run(SMOKE[1], "tests.agents:Standstill")
     assert res.status == "Failed - Agent got blocked"
     assert res.game_time == pytest.approx(180.0, abs=0.1)
-    assert len(ev["vehicle_blocked"]) == 1 and ev["route_dev"] == []
+    assert len(ev["vehicle_blocked"]) == 1
+    assert ev["route_dev"] == []
     res, ev = _run(SMOKE[1], "route_follower")
     assert ev["vehicle_blocked"] == []
 
@@ -112,7 +119,8 @@ def test_min_speed_final_checkpoint_is_emitted_twice_on_a_normal_end(tmp_path):
     res, ev = _run(SMOKE[3], "route_follower", config=str(cfg))
     msgs = ev["min_speed_infractions"]
     assert res.status == "Completed"
-    assert 2 <= len(msgs) <= 5 and msgs[-1] == msgs[-2]
+    assert 2 <= len(msgs) <= 5, msgs
+    assert msgs[-1] == msgs[-2]
     pct = [float(m.split()[3].rstrip("%")) for m in msgs]
     assert all(p < 100 for p in pct)
     assert all(m.startswith("Average speed is ") and m.endswith("% of the surrounding traffic's one") for m in msgs)

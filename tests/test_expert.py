@@ -1,30 +1,33 @@
-"""The expert in closed loop on real libsumo: routes of town12_short on which it once
-collided or ran a light, each for a reason fixed in the expert or the harness."""
+"""The expert in closed loop on real libsumo: routes of town12_short whose situations (below,
+docs/expert.md) lead to a collision or a red light unless the expert and the harness handle them."""
 from __future__ import annotations
 
 import json
 
+import pytest
+
 from sumo_scimm.cli import main
 
-# route id -> what went wrong there (docs/expert.md, session 6)
-ONCE_FAILED = {
-    "13": "waiting at the line to turn left, it went on yellow and its rear crossed on red",
-    "17": "a crossing walker reported speed 0 (moveToXY), so the forecast ignored it",
-    "50": "the hard-braking leader, inserted late by SUMO, appeared beside the ego",
+# route id -> the situation that makes it hard (docs/expert.md)
+HARD_ROUTES = {
+    "13": "waiting at the line to turn left: going on yellow lets its rear cross on red",
+    "17": "a crossing walker moved by moveToXY, whose speed SUMO reports as 0",
+    "50": "the hard-braking leader: SUMO can insert it late, beside the ego",
     "63": "the route changes lanes on an edge, into the lane of a vehicle coming from behind",
-    "68": "a vehicle cutting in from the curb, seen as parallel traffic, was ignored",
+    "68": "a vehicle cutting in from the curb, which looks like parallel traffic",
 }
 
 
-def test_the_expert_drives_routes_it_once_failed_without_collision_or_red_light(tmp_path, capsys):
+@pytest.mark.slow
+def test_the_expert_drives_its_hard_routes_without_collision_or_red_light(tmp_path, capsys):
     out = tmp_path / "run"
-    subset = ",".join(ONCE_FAILED)
+    subset = ",".join(HARD_ROUTES)
     assert main(["eval", "--routes", "town12_short", "--routes-subset", subset, "--agent", "expert",
                  "--workers", "2", "--out", str(out)]) == 0
     records = [json.loads(line) for line in (out / "records.jsonl").read_text().splitlines()]
-    assert sorted(r["route_id"] for r in records) == sorted(ONCE_FAILED)
+    assert sorted(r["route_id"] for r in records) == sorted(HARD_ROUTES)
     for r in records:
         assert r["status"] == "Completed", (r["route_id"], r["message"])
         bad = {k: v for k, v in r["lb"]["infractions"].items()
                if v and k.startswith(("collisions", "red_light"))}
-        assert bad == {}, f"route {r['route_id']} ({ONCE_FAILED[r['route_id']]}): {bad}"
+        assert bad == {}, f"route {r['route_id']} ({HARD_ROUTES[r['route_id']]}): {bad}"

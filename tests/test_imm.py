@@ -123,7 +123,9 @@ def test_simplex_psd_and_extreme_innovations_stay_finite():
     z = simulate(rng, F, Q, R, Pi, B=2, T=200)
     z[1, 100] = 1e8  # an absurd measurement: likelihoods about -1e16 in log space
     res = imm_filter(z, F, Q, R, rng.normal(size=(2, M, N)), P0, Pi, mu0)
-    assert np.isfinite(res.x).all() and np.isfinite(res.mu).all() and np.isfinite(res.loglik).all()
+    assert np.isfinite(res.x).all()
+    assert np.isfinite(res.mu).all()
+    assert np.isfinite(res.loglik).all()
     assert (res.mu >= 0).all()
     np.testing.assert_allclose(res.mu.sum(axis=-1), 1.0, atol=1e-12)
     np.testing.assert_allclose(res.P, np.swapaxes(res.P, -1, -2), atol=0)
@@ -161,7 +163,8 @@ def test_an_unreachable_mode_changes_nothing():
     x0 = rng.normal(size=(2, M, N))
     five = imm_filter(z, F, Q, R, x0, P0, Pi, mu0)
     four = imm_filter(z, F[:4], Q[:4], R, x0[:, :4], P0[:4], Pi[:4, :4], mu0[:4])
-    assert np.isfinite(five.x_modes).all() and (five.mu[..., 4] == 0.0).all()
+    assert np.isfinite(five.x_modes).all()
+    assert (five.mu[..., 4] == 0.0).all()
     # the same sums with exact zero terms added, possibly in another order: 1e-12
     np.testing.assert_allclose(five.x, four.x, atol=1e-12)
     np.testing.assert_allclose(five.P, four.P, atol=1e-12)
@@ -281,5 +284,8 @@ def test_bench_reports_its_figures_from_a_fresh_process():
     from scimm.bench import run_imm_bench
     r = run_imm_bench(batch=3, frames=12, filterpy_sequences=2)
     assert (r["imm_batch"], r["imm_frames"]) == (3, 12)
-    assert r["imm_frames_per_s"] > 0 and r["imm_frames_per_s_wall"] > 0 and r["filterpy_frames_per_s"] > 0
-    assert r["max_abs_diff_x"] < 1e-9 and r["max_abs_diff_mu"] < 1e-9
+    assert r["imm_frames_per_s"] > 0
+    assert r["imm_frames_per_s_wall"] > 0
+    assert r["filterpy_frames_per_s"] > 0
+    assert r["max_abs_diff_x"] < 1e-9
+    assert r["max_abs_diff_mu"] < 1e-9

@@ -98,7 +98,8 @@ def test_student_outputs_cumulative_points_and_five_mode_logits():
     torch.manual_seed(0)
     m = Student(NetConfig()).eval()
     out = m(torch.zeros(3, 9, 64, 64), torch.zeros(3, 2), torch.zeros(3))
-    assert out["path"].shape == (3, 20, 2) and out["speed_wps"].shape == (3, 10, 2)
+    assert out["path"].shape == (3, 20, 2)
+    assert out["speed_wps"].shape == (3, 10, 2)
     assert out["mode_logits"].shape == (3, 5)
     x = torch.cat([m.target_in(torch.zeros(3, 1, 2)), m.speed_in(torch.zeros(3, 1, 1)), m.queries.expand(3, -1, -1)], 1)
     for block in m.blocks:
@@ -193,8 +194,10 @@ def test_the_baseline_never_reads_teacher_files(tmp_path, monkeypatch):
     monkeypatch.setattr(np, "load", lambda f, *a, **k: (opened.append(str(f)), real_load(f, *a, **k))[1])
     data = StudentData.load(tmp_path, tmp_path / "cache", 2, teacher=None)
     b = data.batch(np.arange(4), np.ones(4, int))
-    assert data.teacher is None and "teacher_path" not in b
-    assert opened and not [f for f in opened if "teacher" in f]
+    assert data.teacher is None
+    assert "teacher_path" not in b
+    assert opened, "np.load was never called: the check saw nothing"
+    assert not [f for f in opened if "teacher" in f]
     with pytest.raises(BadInput, match="unreadable"):
         StudentData.load(tmp_path, tmp_path / "cache", 2, teacher="scimm")
 
@@ -220,7 +223,9 @@ def test_two_training_steps_are_deterministic_for_a_seed(trained):
     for (k, va), vb, vc in zip(a.state_dict().items(), b.state_dict().values(), c.state_dict().values()):
         torch.testing.assert_close(va, vb, rtol=0, atol=0, msg=k)
     assert any(not torch.equal(va, vc) for va, vc in zip(a.state_dict().values(), c.state_dict().values()))
-    assert manifest["teacher"] == "scimm" and manifest["seed"] == 3 and manifest["steps"] == 2
+    assert manifest["teacher"] == "scimm"
+    assert manifest["seed"] == 3
+    assert manifest["steps"] == 2
     assert manifest["data_hash"] == bevcache.dataset_hash(trained)
     assert {"teacher_path", "teacher_speed", "mode", "loss"} <= set(manifest["final_train"])
     assert manifest["git_commit"]
@@ -235,7 +240,8 @@ def test_a_model_checkpoint_round_trips(tmp_path):
     with torch.no_grad():
         for k in ("path", "speed_wps", "mode_logits"):
             torch.testing.assert_close(loaded(*x)[k], m(*x)[k], rtol=0, atol=0)
-    assert manifest == {"seed": 1, "teacher": "none"} and (tmp_path / "manifest.json").is_file()
+    assert manifest == {"seed": 1, "teacher": "none"}
+    assert (tmp_path / "manifest.json").is_file()
     assert load_checkpoint(tmp_path)[1] == manifest  # a training --out folder works too
 
 
@@ -260,7 +266,8 @@ def test_the_agent_onnx_network_gives_the_eager_outputs_to_rounding():
                 torch.rand(1, generator=g) * 10
             path, speed_wps = net(x[0][0].numpy(), x[1][0].numpy(), float(x[2][0]))
             eager = m(*x)
-            assert path.shape == (20, 2) and speed_wps.shape == (10, 2)
+            assert path.shape == (20, 2)
+            assert speed_wps.shape == (10, 2)
             np.testing.assert_allclose(path, eager["path"][0].double().numpy(), rtol=0, atol=2e-5)
             np.testing.assert_allclose(speed_wps, eager["speed_wps"][0].double().numpy(), rtol=0, atol=2e-5)
             worst = max(worst, float(np.abs(eager["path"][0].numpy()).max()))
@@ -302,14 +309,18 @@ def test_a_missing_or_corrupt_model_checkpoint_is_one_line_of_bad_input(tmp_path
 def test_train_cli_bad_input_exits_2_with_one_line(tmp_path, capsys):
     assert main(["train", "--data", str(tmp_path / "none"), "--out", str(tmp_path / "o")]) == 2
     err = capsys.readouterr().err
-    assert err.startswith("sumo-scimm: error:") and err.count("\n") == 1 and "no episodes" in err
+    assert err.startswith("sumo-scimm: error:")
+    assert err.count("\n") == 1
+    assert "no episodes" in err
     assert not (tmp_path / "o").exists()
 
 
 def test_cli_default_epochs_is_the_training_default():
-    from model import cli
+    from model.reproduce import EVAL_SET
     from model.train import EPOCHS
-    assert cli.EPOCHS == EPOCHS
+    from sumo_scimm import model_commands
+    assert model_commands.EPOCHS == EPOCHS
+    assert model_commands.EVAL_SET == EVAL_SET
 
 
 # --- data balance and route-end augmentation ---------------------------------------------------
@@ -352,7 +363,8 @@ def test_an_epoch_draws_moving_frames_once_thins_waits_drops_stop_sign_waits_rep
     assert counts[:100].max() <= 1
     # binomial(100, KEEP_STAY <= 0.5): sd <= 5; a 4-sd band
     assert abs(int(counts[:100].sum()) - 100 * KEEP_STAY) < 20
-    assert set(np.unique(views)) <= {0, 1} and ((cuts == 0) | ((cuts >= 4) & (cuts <= 30))).all()
+    assert set(np.unique(views)) <= {0, 1}
+    assert ((cuts == 0) | ((cuts >= 4) & (cuts <= 30))).all()
 
 
 @pytest.mark.parametrize("option,value,message", [("--seed", "-1", "--seed must be >= 0"),
@@ -362,7 +374,9 @@ def test_bad_training_options_are_one_line_and_write_nothing(tmp_path, capsys, o
     out = tmp_path / "model"
     assert main(["train", "--data", str(tmp_path / "data"), "--out", str(out), option, value]) == 2
     err = capsys.readouterr().err
-    assert message in err and "Traceback" not in err and len(err.strip().splitlines()) == 1
+    assert message in err
+    assert "Traceback" not in err
+    assert len(err.strip().splitlines()) == 1
     assert not out.exists()
 
 
@@ -373,7 +387,8 @@ def test_eval_refuses_a_corrupt_checkpoint_before_any_route_runs(tmp_path, capsy
     assert main(["eval", "--routes", "town12_smoke", "--agent", "student", "--agent-config", str(bad),
                  "--workers", "1", "--out", str(out)]) == 2
     err = capsys.readouterr().err
-    assert f"model checkpoint {bad}" in err and len(err.strip().splitlines()) == 1
+    assert f"model checkpoint {bad}" in err
+    assert len(err.strip().splitlines()) == 1
     assert not out.exists()
 
 
@@ -385,7 +400,9 @@ def test_the_shipped_students_load_safely_and_say_how_they_were_made(arm, teache
     path = SHIPPED / arm / "student.pt"
     assert path.stat().st_size < 1_000_000
     model, manifest = load_checkpoint(path)
-    assert manifest["teacher"] == teacher and manifest["seed"] == 0 and manifest["epochs"] == 5
+    assert manifest["teacher"] == teacher
+    assert manifest["seed"] == 0
+    assert manifest["epochs"] == 5
     assert json.loads((SHIPPED / arm / "manifest.json").read_text()) == manifest
 
 

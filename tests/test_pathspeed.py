@@ -31,7 +31,8 @@ def test_round_trip_is_exact_on_quadratic_headings_and_linear_speeds():
     np.testing.assert_allclose(ps.state_path(z), path, rtol=0, atol=1e-9)
     np.testing.assert_allclose(ps.state_speeds(z), ps.label_speeds(wps), rtol=0, atol=1e-10)
     dp, dv = ps.residuals(path, wps, z)
-    assert dp.max() < 1e-9 and dv.max() < 1e-10
+    assert dp.max() < 1e-9
+    assert dv.max() < 1e-10
 
 
 def arc(radius: float, left: bool = True) -> np.ndarray:
@@ -70,11 +71,13 @@ def test_junction_turn_with_straight_approach_and_exit_is_held_better_than_a_lat
     dq = np.abs(np.polyval(coef, path[:, 0]) - path[:, 1]).max()
     # measured 0.26 m vs 3.1 m (y(x) cannot follow the exit, which runs along the y axis);
     # bound 0.5 m: well inside a lane's half width (1.75 m), where the label stays in its lane
-    assert dp < 0.5 and dp < dq / 4
+    assert dp < 0.5
+    assert dp < dq / 4
 
 
 def test_speed_teacher_is_clamped_at_a_stop():
     x = np.array([2.0, 0, 0, 2.0, -2.0])  # reaches 0 at tau = 1 s
     v = ps.state_speeds(x)
     np.testing.assert_allclose(v, np.maximum(2.0 - 2.0 * (ps.SPEED_TAU - 0.125), 0.0))
-    assert v[-1] == 0.0 and v[0] == 2.0 - 2.0 * 0.125
+    assert v[-1] == 0.0
+    assert v[0] == 2.0 - 2.0 * 0.125

@@ -27,7 +27,8 @@ def test_the_target_point_stays_target_min_ahead_on_the_run_on_near_the_end():
     # far from the end: a sparse route point, at least TARGET_MIN ahead
     tp = plan.target_xy(0)
     j = int(np.flatnonzero((plan.xy == tp).all(axis=1))[0])
-    assert j in set(plan.sparse.tolist()) and plan.s[j] >= TARGET_MIN
+    assert j in set(plan.sparse.tolist())
+    assert plan.s[j] >= TARGET_MIN
 
 
 def test_the_shown_route_is_the_route_then_a_straight_run_on():

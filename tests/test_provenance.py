@@ -50,10 +50,13 @@ def test_the_code_digest_does_not_depend_on_where_the_stages_are_installed(tmp_p
 
 def test_software_names_the_python_and_the_pinned_libraries():
     sw = provenance.software()
-    assert re.fullmatch(r"[0-9a-f]{16}", sw["code"]) and sw["python"].count(".") == 2
-    assert set(provenance.LIBRARIES) <= set(sw) and all(sw[lib] for lib in provenance.LIBRARIES)
+    assert re.fullmatch(r"[0-9a-f]{16}", sw["code"])
+    assert sw["python"].count(".") == 2
+    assert set(provenance.LIBRARIES) <= set(sw)
+    assert all(sw[lib] for lib in provenance.LIBRARIES), sw
     # the pins of pyproject.toml (libsumo and sumolib with eclipse-sumo, the runtime)
-    assert sw["libsumo"] == sw["sumolib"] == "1.28.0" and sw["onnxruntime"] == "1.32.0"
+    assert sw["libsumo"] == sw["sumolib"] == "1.28.0"
+    assert sw["onnxruntime"] == "1.32.0"
 
 
 def test_a_config_digest_is_of_the_bytes_and_follows_a_rewrite(tmp_path):
@@ -70,7 +73,7 @@ def test_a_config_digest_is_of_the_bytes_and_follows_a_rewrite(tmp_path):
 def test_a_module_agent_is_identified_by_its_module_file(tmp_path, monkeypatch):
     """An agent given as module:Class lives outside the stages: its file's digest is part
     of each route run, so editing it is another run."""
-    from harness.runs.runner import Job
+    from harness.runs.jobs import Job
     from scenarios import set_path
     from scenarios.routefile import read_routes
     (tmp_path / "my_agent.py").write_text("class A: pass\n")
@@ -80,5 +83,7 @@ def test_a_module_agent_is_identified_by_its_module_file(tmp_path, monkeypatch):
     before = provenance.run_identity([job])["route_runs"][job.key]["agent_module_digest"]
     (tmp_path / "my_agent.py").write_text("class A:\n    speed = 2\n")
     after = provenance.run_identity([job])["route_runs"][job.key]["agent_module_digest"]
-    assert before and after and before != after
+    assert before, "no digest before the edit"
+    assert after, "no digest after the edit"
+    assert before != after
     assert "agent_module_digest" not in provenance.run_identity([Job(0, route, 0, "expert", None, 1, "")])["route_runs"][job.key]

@@ -48,10 +48,14 @@ def test_mean_over_seeds_interval_and_change_against_the_baseline(tmp_path):
     assert float(rows[1]["DS change %"]) == pytest.approx(20.0)
     rows4 = list(csv.DictReader(open(tmp_path / "tables" / "table4.csv")))
     assert float(rows4[1]["steering_jerk change %"]) == pytest.approx(-200 / 3)
-    assert "(+20.0 %)" in text and (tmp_path / "tables" / "table3.md").is_file()
+    assert "(+20.0 %)" in text
+    assert (tmp_path / "tables" / "table3.md").is_file()
     # figures keep 4 significant digits: the baseline's DS reads 55, its steering jerk 3
-    assert "| baseline | 2 | 55 [" in text and "| scimm | 1 | 66 [66, 66] (+20.0 %)" in text
+    assert "| baseline | 2 | 55 [" in text
+    assert "| scimm | 1 | 66 [66, 66] (+20.0 %)" in text
 
 
 def test_small_figures_keep_their_significant_digits():
-    assert fig(0.000312345) == "0.0003123" and fig(54.9712) == "54.97" and fig(100.0) == "100"
+    assert fig(0.000312345) == "0.0003123"
+    assert fig(54.9712) == "54.97"
+    assert fig(100.0) == "100"

@@ -42,7 +42,8 @@ def test_training_sets_span_all_towns():
 @pytest.mark.parametrize("name", list(SETS))
 def test_committed_sets_pass_check(name):
     n, problems = check_file(set_path(name))
-    assert problems == [] and n == sum(k for _, k in SETS[name].towns)
+    assert problems == []
+    assert n == sum(k for _, k in SETS[name].towns)
 
 
 @pytest.mark.parametrize("name", list(SETS))

@@ -144,7 +144,8 @@ def test_score_reproduces_a_carla_results_file(tmp_path, capsys):
     assert r0["scores"]["score_penalty"] == round(0.6 * 0.78765625, 6) == 0.472594
     assert r0["scores"]["score_composed"] == 47.259375
     # route 1: red 0.7, outside 8 % -> 0.92: IS = 0.644; DS = 42.5 * 0.644 = 27.37
-    assert r1["scores"]["score_penalty"] == 0.644 and r1["scores"]["score_composed"] == 27.37
+    assert r1["scores"]["score_penalty"] == 0.644
+    assert r1["scores"]["score_composed"] == 27.37
     g = data["_checkpoint"]["global_record"]
     # 3 planned routes, 2 run: DS mean = (47.259375 + 27.37) / 3 = 24.876458
     assert g["scores_mean"]["score_composed"] == 24.876458
@@ -152,12 +153,14 @@ def test_score_reproduces_a_carla_results_file(tmp_path, capsys):
     # km = 2.0 + 0.425 = 2.425: 1 vehicle collision / 2.425 = 0.412; 3 min-speed... 2 / 2.425 = 0.825
     assert g["infractions"]["collisions_vehicle"] == 0.412
     assert g["infractions"]["min_speed_infractions"] == 0.825
-    assert g["infractions"]["red_light"] == 0.412 and g["infractions"]["route_dev"] == 0.412
+    assert g["infractions"]["red_light"] == 0.412
+    assert g["infractions"]["route_dev"] == 0.412
     assert g["infractions"]["outside_route_lanes"] == 0.02  # 20 m -> 0.02 km, not per km
-    assert g["status"] == "Failed" and g["meta"]["exceptions"] == [["RouteScenario_1_rep0", 1,
-                                                                   "Failed - Agent deviated from the route"]]
+    assert g["status"] == "Failed"
+    assert g["meta"]["exceptions"] == [["RouteScenario_1_rep0", 1, "Failed - Agent deviated from the route"]]
     assert data["values"][:3] == ["24.876458", "47.5", "0.372198"]
-    assert data["labels"][0] == "Avg. driving score" and len(data["values"]) == len(data["labels"]) == 15
+    assert data["labels"][0] == "Avg. driving score"
+    assert len(data["values"]) == len(data["labels"]) == 15
 
 
 def test_score_rejects_what_is_not_a_results_file(tmp_path, capsys):
@@ -182,9 +185,10 @@ def test_rescoring_is_idempotent():
 
 def test_summary_does_not_depend_on_the_order_routes_finished_in():
     """Workers finish routes in an order that changes from run to run; summary.csv (values and
-    bootstrap intervals) must not. Before the fix the intervals followed the arrival order."""
+    bootstrap intervals) must not: a bootstrap drawing the records in arrival order would give
+    other intervals on each run."""
     from harness.scoring.outputs import summary_rows
-    from harness.runs.runner import STABILITY
+    from harness.scoring.records import STABILITY
     rng = np.random.default_rng(3)
     records = [{"route_id": str(i), "repetition": 0, "ds": float(rng.uniform(0, 100)),
                 "rc": float(rng.uniform(50, 100)), "is": float(rng.uniform(0, 1)),

@@ -37,7 +37,8 @@ def test_a_path_without_length_or_with_a_nan_point_has_no_curvature():
     broken = _quadratic_in_arc_length(0.1, 0.01)
     broken[5, 1] = np.nan
     kappa = path_curvature(np.stack([standing, broken, _quadratic_in_arc_length(0.0, 0.0)]))
-    assert np.isnan(kappa[0]) and np.isnan(kappa[1])
+    assert np.isnan(kappa[0])
+    assert np.isnan(kappa[1])
     assert kappa[2] == pytest.approx(0.0, abs=1e-12)
 
 
@@ -54,7 +55,7 @@ def test_the_batched_fit_agrees_with_polyfit_also_when_rank_deficient():
         oracle = np.array([np.polyfit(s[t], paths[t, :, 1], 2) for t in range(len(paths))])
     # two backward-stable solvers differ by rounding times the condition number (below 18 for
     # the full-rank fits here; the rank-2 ones are the minimum-norm solution in both): measured
-    # at most 1.1e-15 here, so 1e-12 leaves room for other LAPACK builds
+    # at most 1.1e-15 on these fits, so 1e-12 leaves room for other LAPACK builds
     np.testing.assert_allclose(quadratic_fits(s, paths[:, :, 1]), oracle, rtol=0, atol=1e-12)
 
 

@@ -48,7 +48,8 @@ def test_speed_pid_values_by_hand():
     c = SimLingoController()
     first = c.step(STRAIGHT, wps_at(5.0), 4.5)  # error 0.5 m/s
     # Kp e + Ki mean(window of 20: one 0.5) + Kd (0.5 - 0) = 0.875 + 0.025 + 1.0 -> clipped to 1
-    assert first.throttle == 1.0 and first.brake == 0.0
+    assert first.throttle == 1.0
+    assert first.brake == 0.0
     second = c.step(STRAIGHT, wps_at(5.0), 4.5)
     assert second.throttle == pytest.approx(SPEED_KP * 0.5 + SPEED_KI * 1.0 / 20 + SPEED_KD * 0.0)  # 0.925
     big = SimLingoController().step(STRAIGHT, wps_at(8.0), 2.0)  # error clipped to 1 m/s
@@ -167,7 +168,8 @@ def test_the_student_runs_its_network_only_for_new_inputs_and_repeats_give_its_o
         np.testing.assert_array_equal(wps, fresh_wps, err_msg=f"tick {k}")
     assert (agent.frames, agent.network_calls) == (8, 5)  # 3 of the 8 ticks reused the outputs
     path[:] = np.nan  # a caller writing into the outputs does not reach the agent's copy
-    assert np.isfinite(agent.predict(a, tp + 1e-3, 0.0)[0]).all() and agent.network_calls == 5
+    assert np.isfinite(agent.predict(a, tp + 1e-3, 0.0)[0]).all()
+    assert agent.network_calls == 5
     agent.setup(str(tmp_path / "student.pt"))  # a new route forgets the last inputs
     agent.predict(a, tp + 1e-3, 0.0)
     assert (agent.frames, agent.network_calls) == (1, 1)
@@ -183,8 +185,11 @@ def test_student_agent_returns_a_control_and_its_waypoints(tmp_path):
     assert sorted(s["type"] for s in agent.sensors()) == ["bev", "speed", "target_point"]
     bev = np.zeros((9, 64, 64), np.uint8)
     control, pred = agent.run_step({"bev": bev, "target_point": np.array([12.0, 0.0]), "speed": 3.0}, 0.05)
-    assert isinstance(control, Control) and control.is_finite() and isinstance(pred, Prediction)
-    assert pred.path.shape == (20, 2) and pred.speed_wps.shape == (10, 2)
+    assert isinstance(control, Control)
+    assert control.is_finite()
+    assert isinstance(pred, Prediction)
+    assert pred.path.shape == (20, 2)
+    assert pred.speed_wps.shape == (10, 2)
     assert agent.network_calls == 1
     agent._forget()  # else the same inputs would return the stored outputs without a network call
     path, wps = agent.predict(bev, np.array([12.0, 0.0]), 3.0)

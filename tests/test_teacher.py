@@ -206,22 +206,30 @@ def dataset(tmp_path_factory):
 def test_teacher_cli_writes_the_contract_files(dataset, capsys):
     assert main(["teacher", "--data", str(dataset), "--method", "all"]) == 0
     out = capsys.readouterr().out
-    assert "Original Raw Expert" in out and "junction_turn" in out
+    assert "Original Raw Expert" in out
+    assert "junction_turn" in out
     for method in ("fixed", "scimm"):
         folder = dataset / "teacher" / method
         for stem, T in (("0_rep0", 23), ("1_rep0", 41), ("2_rep0", 7)):
             with np.load(folder / f"{stem}.npz") as f:
-                assert f["path"].shape == (T, 20, 2) and f["path"].dtype == np.float32
-                assert f["speed"].shape == (T, 10) and f["speed"].dtype == np.float32
-                assert f["mu"].shape == (T, 5) and f["mu"].dtype == np.float32
+                assert f["path"].shape == (T, 20, 2)
+                assert f["path"].dtype == np.float32
+                assert f["speed"].shape == (T, 10)
+                assert f["speed"].dtype == np.float32
+                assert f["mu"].shape == (T, 5)
+                assert f["mu"].dtype == np.float32
                 np.testing.assert_allclose(f["mu"].sum(-1), 1.0, atol=1e-6)  # float32 rounding
         meta = json.loads((folder / "manifest.json").read_text())
-        assert meta["method"] == method and meta["episodes"] == 3 and meta["modes"] == list(MODES)
+        assert meta["method"] == method
+        assert meta["episodes"] == 3
+        assert meta["modes"] == list(MODES)
         assert not list(folder.glob("*.tmp"))
     table = pd.read_csv(dataset / "teacher" / "table2.csv")
-    assert len(table) == 4 * 3 and set(table["method"]) == {"Original Raw Expert", "Fixed-IMM", "SC-IMM"}
+    assert len(table) == 4 * 3
+    assert set(table["method"]) == {"Original Raw Expert", "Fixed-IMM", "SC-IMM"}
     res = pd.read_csv(dataset / "teacher" / "fit_residuals.csv")
-    assert "Fit residual" in out and list(res["mode"]) == list(GROUPS)
+    assert "Fit residual" in out
+    assert list(res["mode"]) == list(GROUPS)
     assert res["frames"].sum() == 23 + 41 + 7 == table[table["method"] == "SC-IMM"]["frames"].sum()
 
 
@@ -230,7 +238,8 @@ def test_teacher_is_deterministic(dataset):
     b = run_imm(*_inputs(dataset), "scimm", IMMConfig())
     np.testing.assert_array_equal(a[0], b[0])  # fused states
     np.testing.assert_array_equal(a[1], b[1])  # mode posteriors
-    assert np.isfinite(a[1]).all() and a[1].std() > 0  # not a trivial constant output
+    assert np.isfinite(a[1]).all()
+    assert a[1].std() > 0  # not a trivial constant output
 
 
 def _inputs(folder):
@@ -251,7 +260,9 @@ def test_teacher_cli_bad_input_is_one_line_and_exit_2(argv, message, dataset, ca
     argv = [str(dataset) if a == "DATA" else a for a in argv]
     assert main(argv) == 2
     err = capsys.readouterr().err
-    assert err.startswith("sumo-scimm: error: ") and message in err and err.count("\n") == 1
+    assert err.startswith("sumo-scimm: error: ")
+    assert message in err
+    assert err.count("\n") == 1
 
 
 def test_fit_residuals_are_zero_for_representable_labels_and_grouped_by_dominant_mode():
@@ -272,15 +283,20 @@ def test_fit_residuals_are_zero_for_representable_labels_and_grouped_by_dominant
             "mu": np.array([[0.1, 0.6, 0.1, 0.1, 0.1], [0.0, 0.5, 0.0, 0.4, 0.1]])}
     table = fit_residuals([cruise, turn]).set_index("mode")
     assert list(table.index) == list(GROUPS)
-    assert table.loc["Cruise", "frames"] == 3 and table.loc["Turn", "frames"] == 2
-    assert table.loc["Cruise", "path_max"] < 1e-9 and table.loc["Cruise", "speed_p95"] < 1e-9  # exact round trip
+    assert table.loc["Cruise", "frames"] == 3
+    assert table.loc["Turn", "frames"] == 2
+    # an exact round trip
+    assert table.loc["Cruise", "path_max"] < 1e-9
+    assert table.loc["Cruise", "speed_p95"] < 1e-9
     slope, icpt = np.polyfit(ps.SPEED_MID, v, 1)
     rms = np.sqrt(np.mean((icpt + slope * ps.SPEED_MID - v) ** 2))
     np.testing.assert_allclose(table.loc["Turn", ["speed_mean", "speed_p95"]].to_numpy(float), rms, rtol=1e-9)
     # the kink's heading jumps by pi/2 between chords 8 and 9; the best quadratic misses
     # the corner by metres (1.90 m here; > 1 m leaves room for any least-squares solver)
-    assert table.loc["Turn", "path_mean"] > 1.0 and table.loc["Turn", "path_mean"] == table.loc["Turn", "path_max"]
-    assert table.loc["Deceleration", "frames"] == 0 and np.isnan(table.loc["Deceleration", "path_mean"])
+    assert table.loc["Turn", "path_mean"] > 1.0
+    assert table.loc["Turn", "path_mean"] == table.loc["Turn", "path_max"]
+    assert table.loc["Deceleration", "frames"] == 0
+    assert np.isnan(table.loc["Deceleration", "path_mean"])
 
 
 def test_moved_metrics_take_out_the_egos_own_motion():
@@ -304,8 +320,10 @@ def test_moved_metrics_take_out_the_egos_own_motion():
     speed = 5 + np.sin(np.arange(T)[:, None] + np.arange(10)[None, :])  # v_t(k) = v_t-1(k + 1)
     moved, plain = moved_metrics(path, speed, pose), frame_metrics(path, speed)
     for m in ("lat_delta_moved", "heading_delta_moved", "speed_delta_moved"):
-        assert np.isnan(moved[m][0]) and np.nanmax(moved[m]) < 1e-9, m
-    assert np.nanmax(plain["lat_delta"]) > 0.5 and np.nanmax(plain["heading_delta"]) > 0.05
+        assert np.isnan(moved[m][0]), m
+        assert np.nanmax(moved[m]) < 1e-9, m
+    assert np.nanmax(plain["lat_delta"]) > 0.5
+    assert np.nanmax(plain["heading_delta"]) > 0.05
     assert np.nanmin(plain["speed_delta"]) > 0.1
     path[12, :, 1] += 0.1  # one frame's label moved sideways (in its own ego frame)
     lat = moved_metrics(path, speed, pose)["lat_delta_moved"]

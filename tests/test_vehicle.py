@@ -31,7 +31,8 @@ def test_bicycle_goes_straight_without_steer_and_turns_right_with_positive_steer
     beta = math.atan(LR / wheelbase * math.tan(delta))
     assert r.yaw == pytest.approx(10.0 * math.cos(beta) * math.tan(delta) / wheelbase * DT, rel=1e-12)
     assert (r.x, r.y) == pytest.approx((10.0 * math.cos(beta) * DT, 10.0 * math.sin(beta) * DT), rel=1e-12)
-    assert r.yaw < 0 and r.y < 0  # clockwise, to the right
+    assert r.yaw < 0  # clockwise
+    assert r.y < 0  # to the right
 
 
 def test_actuation_noise_is_seeded():
@@ -41,7 +42,9 @@ def test_actuation_noise_is_seeded():
     for _ in range(50):
         sa, sb, sc = a.step(Control(0.1, 0.5, 0.0)), b.step(Control(0.1, 0.5, 0.0)), c.step(Control(0.1, 0.5, 0.0))
     assert sa == sb  # the same seed, the same noise
-    assert sc.x != sa.x and sc.yaw != sa.yaw  # another seed, other noise (the noise is there)
+    # another seed, other noise (the noise is there)
+    assert sc.x != sa.x
+    assert sc.yaw != sa.yaw
 
 
 def test_pid_window_is_prefilled_with_zeros():
@@ -66,7 +69,8 @@ def test_speed_pid_brake_rule():
     assert SpeedPID().step(0.3, 0.0) == (0.0, 1.0)  # desired < 0.4 m/s
     assert SpeedPID().step(5.0, 5.6) == (0.0, 1.0)  # 12 % too fast
     throttle, brake = SpeedPID().step(5.0, 5.4)  # 8 % too fast: no brake, no throttle need
-    assert brake == 0.0 and throttle == 0.0
+    assert brake == 0.0
+    assert throttle == 0.0
     throttle, brake = SpeedPID().step(6.0, 4.0)  # error clipped to 1 m/s: 1.75 + 1/20 + 2 -> 1
     assert (throttle, brake) == (1.0, 0.0)
 

@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import pytest
 
-from harness.runs.runner import release_freed_memory, rss_mb
+from harness.runs.jobs import release_freed_memory, rss_mb
 
 
 def test_freed_heap_memory_leaves_the_resident_set():

@@ -92,14 +92,29 @@ class Expert(AutonomousAgent):
         x, y, yaw = input_data["pose"]
         v = float(input_data["speed"])
         snap, lights, props = input_data["world"]
-        plan = self.plan
         path = self._path()
         j = min(self.index + 30, len(path))
         self.index += int(np.argmin(np.hypot(*(path[self.index:j] - (x, y)).T)))
-        i, s = self.index, float(plan.s[self.index])
-        n = len(plan.s)
+        i, s = self.index, float(self.plan.s[self.index])
+        xy, yaw_a, spd, size, cls = self._actors(snap, props)
+        s_a, lat_a = self._route_frame(xy, i)
+        v0 = self._cruise_speed(i, v)
+        targets = {"cruise": v0}
+        flags = {"leader": False, "vehicle": False, "walker": False, "light": False, "stop": False,
+                 "junction": False, "obstacle": False}
+        # bypass of a static obstacle in the lane
+        self._manage_bypass(s, v, xy, s_a, lat_a, spd, size, cls, targets, flags)
+        # leaders: aligned actors in the corridor ahead (static ones too)
+        self._leaders(s, v, v0, xy, yaw_a, spd, size, cls, s_a, lat_a, targets, flags)
+        # forecast conflicts: walkers and crossing vehicles entering the ego's corridor
+        self._forecast(x, y, s, v, v0, xy, yaw_a, spd, size, cls, s_a, lat_a, targets, flags)
+        # traffic lights, stop signs, yielding
+        self._junctions(s, v, v0, lights, xy, yaw_a, spd, cls, timestamp, targets, flags)
+        return self._control(x, y, yaw, v, i, path, targets, flags)
 
-        # actors near the ego, with static props, relative to the route
+    def _actors(self, snap, props) -> tuple[np.ndarray, ...]:
+        """Actors near the ego and the static props: positions (M, 2) [m], yaw (M,) [rad],
+        speed (M,) [m/s], size (M, 2) length, width [m], class (M,); world frame."""
         xy, yaw_a, spd, size, cls = snap.xy, snap.yaw, snap.speed, snap.size, snap.cls
         if props:
             pa = np.array(props, dtype=float)
@@ -108,11 +123,22 @@ class Expert(AutonomousAgent):
             spd = np.concatenate([spd, np.zeros(len(pa))])
             size = np.vstack([size, pa[:, 3:5]])
             cls = np.concatenate([cls, np.full(len(pa), STATIC)])
+        return xy, yaw_a, spd, size, cls
+
+    def _route_frame(self, xy: np.ndarray, i: int) -> tuple[np.ndarray, np.ndarray]:
+        """Route arc length [m] and lateral offset (left +) [m] from the driven path (the
+        route shifted by a bypass) of points xy (M, 2), searched from 10 m behind to 90 m
+        ahead of route index i."""
+        n = len(self.plan.s)
         lo, hi = max(i - 10, 0), min(i + 90, n)
         s_a, lat_a = self._project(xy, lo, hi) if len(xy) else (np.zeros(0), np.zeros(0))
-        lat_a = lat_a - self.offset[np.clip(np.searchsorted(plan.s, s_a), 0, n - 1)] if len(xy) else lat_a
+        lat_a = lat_a - self.offset[np.clip(np.searchsorted(self.plan.s, s_a), 0, n - 1)] if len(xy) else lat_a
+        return s_a, lat_a
 
-        # base target: limit ratio, curvature ahead
+    def _cruise_speed(self, i: int, v: float) -> float:
+        """The base target [m/s] at route index i and ego speed v: TARGET_RATIO x the speed
+        limit, capped by the route's curvature ahead (lateral acceleration MAX_LAT_ACC)."""
+        plan, n = self.plan, len(self.plan.s)
         v0 = TARGET_RATIO * float(plan.speed_limit[i])
         ahead = slice(i, min(i + int(max(10.0, 2.5 * v)) + 8, n))
         dyaw = np.abs((np.diff(plan.yaw[ahead]) + math.pi) % (2 * math.pi) - math.pi)
@@ -120,14 +146,28 @@ class Expert(AutonomousAgent):
             kappa = float(np.max(np.convolve(dyaw, np.ones(3) / 3, mode="same")))  # per 1 m
             if kappa > 1e-3:
                 v0 = min(v0, math.sqrt(MAX_LAT_ACC / kappa))
-        targets = {"cruise": v0}
-        flags = {"leader": False, "vehicle": False, "walker": False, "light": False, "stop": False,
-                 "junction": False, "obstacle": False}
+        return v0
 
-        # bypass of a static obstacle in the lane
-        self._manage_bypass(s, v, xy, s_a, lat_a, spd, size, cls, targets, flags)
+    def _control(self, x, y, yaw, v, i, path, targets, flags) -> Control:
+        """The lowest target speed wins; PDM-Lite's throttle/brake towards it and the
+        lateral PID on the next 20 m of the driven path."""
+        n = len(self.plan.s)
+        cause = min(targets, key=targets.get)
+        target = targets[cause]
+        self.target_speed, self.flags = target, flags
+        throttle, brake = longitudinal.throttle_brake(target, v, hazard_brake=target < 0.05)
+        if throttle == 0.0 and v < 0.5 and target < 0.5:
+            brake = 1.0  # no roll-back (PDM-Lite)
+        pts = to_ego(path[i:min(i + 20, n)], x, y, yaw)
+        pts = pts[pts[:, 0] > 0.0] if (pts[:, 0] > 0.0).any() else pts[-1:]
+        steer = self.lateral.step(pts, v)
+        return Control(round(steer, 3), throttle, brake)
 
-        # leaders: aligned actors in the corridor ahead (static ones too)
+    # --- causes ---------------------------------------------------------------------------
+    def _leaders(self, s, v, v0, xy, yaw_a, spd, size, cls, s_a, lat_a, targets, flags):
+        """Vehicles aligned with the route and static actors in the corridor up to 60 m
+        ahead: the lowest IDM target over their gaps is the "leader" target."""
+        plan, n = self.plan, len(self.plan.s)
         for k in range(len(xy)):
             ds = s_a[k] - s
             if ds <= 0 or ds > 60:
@@ -147,24 +187,6 @@ class Expert(AutonomousAgent):
                     flags["leader"] = flags["leader"] or cls[k] == VEHICLE
                     flags["obstacle"] = flags["obstacle"] or cls[k] == STATIC
 
-        # forecast conflicts: walkers and crossing vehicles entering the ego's corridor
-        self._forecast(x, y, s, v, v0, xy, yaw_a, spd, size, cls, s_a, lat_a, targets, flags)
-
-        # traffic lights, stop signs, yielding
-        self._junctions(s, v, v0, lights, xy, yaw_a, spd, cls, timestamp, targets, flags)
-
-        cause = min(targets, key=targets.get)
-        target = targets[cause]
-        self.target_speed, self.flags = target, flags
-        throttle, brake = longitudinal.throttle_brake(target, v, hazard_brake=target < 0.05)
-        if throttle == 0.0 and v < 0.5 and target < 0.5:
-            brake = 1.0  # no roll-back (PDM-Lite)
-        pts = to_ego(path[i:min(i + 20, n)], x, y, yaw)
-        pts = pts[pts[:, 0] > 0.0] if (pts[:, 0] > 0.0).any() else pts[-1:]
-        steer = self.lateral.step(pts, v)
-        return Control(round(steer, 3), throttle, brake)
-
-    # --- causes ---------------------------------------------------------------------------
     def _forecast(self, x, y, s, v, v0, xy, yaw_a, spd, size, cls, s_a, lat_a, targets, flags):
         if len(xy) == 0:
             return

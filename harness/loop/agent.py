@@ -26,10 +26,12 @@ from __future__ import annotations
 
 import importlib
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
 from controller.vehicle import Control
+from harness.common.errors import BadInput
 
 SENSOR_TYPES = ("speed", "pose", "target_point", "command", "bev", "world")
 
@@ -139,6 +141,25 @@ def load_agent(name: str) -> AutonomousAgent:
     except Exception as exc:  # noqa: BLE001
         raise AgentLoadError(f"agent {name!r}: {cls_name}() failed ({type(exc).__name__}: {exc}); "
                              "an agent is built without arguments (its config goes to setup())") from None
+
+
+def check_agent(name: str, config: str | None) -> tuple[str, str | None]:
+    """(agent, config) to run, checked: BadInput unless the agent loads and accepts its
+    config (``--agent-config``, a file). ``--agent PATH.pt`` names a student checkpoint
+    (SPEC §3): it is ``--agent student --agent-config PATH.pt``."""
+    if name.endswith(".pt") and ":" not in name:
+        if not Path(name).is_file():
+            raise BadInput(f"--agent {name!r}: no such checkpoint file")
+        if config and Path(config).resolve() != Path(name).resolve():
+            raise BadInput(f"--agent {name!r} is a checkpoint: drop --agent-config {config!r}")
+        name, config = "student", name
+    if config and not Path(config).is_file():
+        raise BadInput(f"--agent-config {config!r} does not exist")
+    try:
+        load_agent(name).check_config(config)
+    except (AgentLoadError, ValueError, OSError) as exc:
+        raise BadInput(str(exc)) from None
+    return name, config
 
 
 def split_output(out) -> tuple[Control, Prediction | None]:

@@ -22,9 +22,10 @@ import numpy as np
 
 from controller.vehicle import DT, LENGTH, WIDTH, Control, EgoState, EgoVehicle
 from harness.scoring import criteria
+from harness.scoring.statuses import FAILED_AGENT, FAILED_SETUP, FAILED_SIMULATION
 from harness.loop.agent import Prediction, load_agent, split_output, validate_sensors
 from harness.sim.contacts import overlaps
-from harness.sim.hazards import HazardActor
+from harness.sim.hazards import make_hazard
 from harness.sim.plan import GlobalPlan, build_plan, to_ego
 from harness.sim.traffic import BackgroundTraffic, RouteBubble
 from harness.sim.world import STATIC, Snapshot, World
@@ -119,90 +120,135 @@ def run_episode(route: Route, agent_name: str, agent_config: str | None, seed: i
     ``agent_timeout``: the per-step deadline of ``run_step`` [s of wall time].
 
     ``on_frame(frame)`` is called with a :class:`Frame` after every tick (rendering,
-    recording); it must not change the simulation.
+    recording); it must not change the simulation. An error ends the route with its
+    status (harness.scoring.statuses), the log up to that tick kept.
     """
-    from harness.sensors.bev import BevRenderer  # the renderer pulls OpenCV; keep import local
-
     wall0 = wallclock.perf_counter()
-    loop_time = 0.0
     ss = np.random.SeedSequence(seed)
-    rng_traffic, rng_hazard, rng_ego = (np.random.default_rng(s) for s in ss.spawn(3))
+    rngs = tuple(np.random.default_rng(s) for s in ss.spawn(3))  # traffic, hazards, ego
     net = load_net(route.town)
     plan = build_plan(route, net)
-    log = EpisodeLog()
+    run = _Run()
     world = World(route.town, int(ss.generate_state(1)[0] % (2**31 - 1)), background_roads(route, net))
-    agent = None
-    status, message, tick = criteria.FAILED_SIMULATION, "", 0
     try:
-        x0, y0, yaw0 = plan.path.pose(0.0)
-        scene = Scene(route, net, plan, world, rng_traffic, rng_hazard)
-        ego = EgoVehicle(EgoState(x0, y0, yaw0, 0.0), rng_ego)
-        scene.start(ego.state)
-        snap = world.snapshot()
-        lights = [p for p in plan.passages if p.tls]
-        bev = BevRenderer.for_town(route.town)
-        try:
-            agent = load_agent(agent_name)
-            agent.set_global_plan(plan)
-            agent.setup(agent_config)
-            specs = agent.sensors()
-            validate_sensors(specs)
-        except Exception as exc:  # noqa: BLE001 - any agent failure is recorded, the run goes on
-            raise _AgentSetupError(f"{type(exc).__name__}: {exc}") from exc
-        done = criteria.RouteCompletion(plan)
-        in_route, blocked, timeout = criteria.InRoute(plan), criteria.Blocked(), criteria.RouteTimeout(plan)
-        hazards, props = scene.hazards, scene.props
-        prop_boxes = np.array(props, dtype=float).reshape(-1, 5)  # (P, 5) x, y, yaw, length, width
-        end = None
-        alarm = _deadline_alarm()
-        loop0 = wallclock.perf_counter()
-        lights_now = world.light_states(lights)
-        while end is None:
-            s = ego.state
-            progress = done.progress.index
-            try:
-                inputs = sensor_inputs(specs, s, plan, progress, snap, (snap, lights_now, props),
-                                 lambda: bev.render(s, snap, plan, lights_now, props))
-                out = _step_with_deadline(agent, inputs, world.time, agent_timeout, alarm)
-                control, pred = split_output(out)
-                if not control.is_finite():
-                    raise ValueError(f"non-finite control {control}")
-            except Exception as exc:  # noqa: BLE001
-                status, message = criteria.FAILED_AGENT, f"{type(exc).__name__}: {exc}"
-                break
-            s = ego.step(control)
-            ego_s = float(plan.s[progress])
-            scene.advance(s, ego_s)
-            snap = world.snapshot()
-            lights_now = world.light_states(lights)  # the state the next tick sees
-            tick += 1
-            # Blocked reads ``paused`` only below its speed: the hazards are asked only then
-            paused = s.v < criteria.Blocked.SPEED and any(h.timeout_active(ego_s, world.time) for h in hazards)
-            end = (done.update(s.x, s.y) or in_route.update(s.x, s.y)
-                   or blocked.update(s.v, world.time, paused=paused)
-                   or timeout.update(s.x, s.y, world.time))
-            _log_tick(log, tick, world.time, s, control, pred, done, snap, lights_now, prop_boxes)
-            if on_frame is not None:
-                on_frame(Frame(tick, s, snap, plan, pred, lights_now, props, control, agent))
-        loop_time = wallclock.perf_counter() - loop0
-        if end is not None:
-            status = end
-        rc = done.rc
+        status, message, rc = _drive(run, route, net, plan, world, rngs, agent_name, agent_config, on_frame,
+                                     agent_timeout)
     except _AgentSetupError as exc:
-        status, message, rc = criteria.FAILED_SETUP, str(exc), 0.0
+        status, message, rc = FAILED_SETUP, str(exc), 0.0
     except Exception as exc:  # noqa: BLE001 - a simulator failure ends this route only
-        status, message = criteria.FAILED_SIMULATION, f"{type(exc).__name__}: {exc}"
-        rc = log.columns["rc"][-1] if log.columns["rc"] else 0.0
-        message += "\n" + traceback.format_exc(limit=3)
+        status, message = FAILED_SIMULATION, f"{type(exc).__name__}: {exc}"
+        rc = run.log.columns["rc"][-1] if run.log.columns["rc"] else 0.0
+        message += "\n" + traceback.format_exc(limit=4)
     finally:
-        if agent is not None:
+        if run.agent is not None:
             try:
-                agent.destroy()
+                run.agent.destroy()
             except Exception:  # noqa: BLE001 - destroy errors must not hide the route result
                 pass
         world.close()
-    return EpisodeResult(status, float(rc), round(tick * DT, 3), wallclock.perf_counter() - wall0,
-                         tick, message, log, plan.length, plan, loop_time)
+    return EpisodeResult(status, float(rc), round(run.tick * DT, 3), wallclock.perf_counter() - wall0,
+                         run.tick, message, run.log, plan.length, plan, run.loop_time)
+
+
+@dataclass
+class _Run:
+    """An episode in progress: what its result keeps when it ends in an error."""
+
+    log: EpisodeLog = field(default_factory=EpisodeLog)
+    agent: object = None  # the agent instance once loaded (destroyed at the end)
+    tick: int = 0  # ticks driven
+    loop_time: float = 0.0  # wall time of the tick loop [s], set when it ends
+
+
+def _drive(run: _Run, route: Route, net, plan: GlobalPlan, world: World, rngs: tuple, agent_name: str,
+           agent_config: str | None, on_frame, agent_timeout: float) -> tuple[str, str, float]:
+    """Set up the scene and the agent, then tick until a criterion ends the route or the
+    agent fails; returns (status, message, RC). ``rngs``: the traffic, hazard and ego
+    generators. A failing agent set-up raises _AgentSetupError; any other error (the
+    simulator's, the harness's) propagates."""
+    from harness.sensors.bev import BevRenderer  # the renderer pulls OpenCV; keep import local
+
+    rng_traffic, rng_hazard, rng_ego = rngs
+    x0, y0, yaw0 = plan.path.pose(0.0)
+    scene = Scene(route, net, plan, world, rng_traffic, rng_hazard)
+    ego = EgoVehicle(EgoState(x0, y0, yaw0, 0.0), rng_ego)
+    scene.start(ego.state)
+    snap = world.snapshot()
+    lights = [p for p in plan.passages if p.tls]
+    bev = BevRenderer.for_town(route.town)
+    specs = _setup_agent(run, agent_name, agent_config, plan)
+    ends = _RouteEnd(plan)
+    props = scene.props
+    prop_boxes = np.array(props, dtype=float).reshape(-1, 5)  # (P, 5) x, y, yaw, length, width
+    end = None
+    alarm = _deadline_alarm()
+    loop0 = wallclock.perf_counter()
+    lights_now = world.light_states(lights)
+    while end is None:
+        s = ego.state
+        progress = ends.done.progress.index
+        try:
+            inputs = sensor_inputs(specs, s, plan, progress, snap, (snap, lights_now, props),
+                                   lambda: bev.render(s, snap, plan, lights_now, props))
+            control, pred = _agent_step(run.agent, inputs, world.time, agent_timeout, alarm)
+        except Exception as exc:  # noqa: BLE001 - an agent failure ends this route only
+            run.loop_time = wallclock.perf_counter() - loop0
+            return FAILED_AGENT, f"{type(exc).__name__}: {exc}", ends.done.rc
+        s = ego.step(control)
+        ego_s = float(plan.s[progress])
+        scene.advance(s, ego_s)
+        snap = world.snapshot()
+        lights_now = world.light_states(lights)  # the state the next tick sees
+        run.tick += 1
+        # Blocked reads ``paused`` only below its speed: the hazards are asked only then
+        paused = s.v < criteria.Blocked.SPEED and any(h.timeout_active(ego_s, world.time) for h in scene.hazards)
+        end = ends.update(s, world.time, paused)
+        _log_tick(run.log, run.tick, world.time, s, control, pred, ends.done, snap, lights_now, prop_boxes)
+        if on_frame is not None:
+            on_frame(Frame(run.tick, s, snap, plan, pred, lights_now, props, control, run.agent))
+    run.loop_time = wallclock.perf_counter() - loop0
+    return end, "", ends.done.rc
+
+
+def _setup_agent(run: _Run, agent_name: str, agent_config: str | None, plan: GlobalPlan) -> list[dict]:
+    """Load the agent into ``run``, give it the plan, set it up; returns its validated
+    sensor specs. Any failure raises _AgentSetupError."""
+    try:
+        run.agent = load_agent(agent_name)
+        run.agent.set_global_plan(plan)
+        run.agent.setup(agent_config)
+        specs = run.agent.sensors()
+        validate_sensors(specs)
+    except Exception as exc:  # noqa: BLE001 - any agent failure is recorded, the run goes on
+        raise _AgentSetupError(f"{type(exc).__name__}: {exc}") from exc
+    return specs
+
+
+def _agent_step(agent, inputs: dict, timestamp: float, timeout: float,
+                alarm: bool) -> tuple[Control, Prediction | None]:
+    """The agent's control and prediction for one tick, under the step deadline; a
+    non-finite control raises ValueError."""
+    control, pred = split_output(_step_with_deadline(agent, inputs, timestamp, timeout, alarm))
+    if not control.is_finite():
+        raise ValueError(f"non-finite control {control}")
+    return control, pred
+
+
+class _RouteEnd:
+    """The route-ending criteria, asked in the Leaderboard's order: the first that answers
+    ends the route, and the ones after it are not updated on that tick."""
+
+    def __init__(self, plan: GlobalPlan):
+        self.done = criteria.RouteCompletion(plan)  # also the route index and RC
+        self.in_route, self.blocked = criteria.InRoute(plan), criteria.Blocked()
+        self.timeout = criteria.RouteTimeout(plan)
+
+    def update(self, s: EgoState, time: float, paused: bool) -> str | None:
+        """The status that ends the route at ego state s and simulation time [s], or None;
+        ``paused``: a scenario timeout runs (Blocked is off)."""
+        return (self.done.update(s.x, s.y) or self.in_route.update(s.x, s.y)
+                or self.blocked.update(s.v, time, paused=paused)
+                or self.timeout.update(s.x, s.y, time))
 
 
 class Scene:
@@ -215,12 +261,12 @@ class Scene:
                  rng_traffic: np.random.Generator, rng_hazard: np.random.Generator):
         self.world = world
         world.add_ego(route.edges, net.getLane(plan.path.legs[0].lane_in).getIndex(), route.depart_pos)
-        self.hazards = [HazardActor(h, plan, net, rng_hazard, k) for k, h in enumerate(route.hazards)]
+        self.hazards = [make_hazard(h, plan, net, rng_hazard, k) for k, h in enumerate(route.hazards)]
         for h in self.hazards:
             h.setup()
         self.traffic = BackgroundTraffic(net, plan, rng_traffic)
         self.traffic.populate()
-        quiet = tuple((h.site_s - 100.0, h.site_s + 150.0) for h in self.hazards if h.h.type == "ParkedObstacle")
+        quiet = tuple(q for q in (h.quiet_span() for h in self.hazards) if q is not None)
         self.bubble = RouteBubble(net, plan, quiet)
         self.props = [p for h in self.hazards for p in h.props]  # harness-only static boxes
         self._legs = [(g.s1, g.edge, net.getLane(g.lane_in).getIndex()) for g in plan.path.legs]
@@ -244,7 +290,7 @@ class Scene:
         world.move_ego(s, *self._hint(ego_s))
         for h in self.hazards:
             h.update(ego_s, world.time, s.v)
-        world.walking = {a.id: a.speed for h in self.hazards for a in h.scripted if a.person}
+        world.walking = {pid: v for h in self.hazards for pid, v in h.walking().items()}
         self.traffic.update()
         self.bubble.update(ego_s, (s.x, s.y), world.time)
         world.step()

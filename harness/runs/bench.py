@@ -16,27 +16,28 @@ measured in the same run (SPEC §11). Never a timed test: numbers to read, not t
 - bare libsumo step with the network between steps (a learned agent, for reading, not a
   target): the same replay with ``network_between(inputs)()``, the agent's network call on
   the recorded inputs, run untimed before every step (the loop runs it on the network
-  share of ticks, and its own work on the others). On this machine SUMO's step costs 2-3x
-  as much as back to back: its caches cool, partly with the time spent elsewhere alone,
-  partly from the network's own use of them (docs/scale.md, session 11). This figure is
-  the SUMO cost any closed loop with this network pays here; the overhead ratio over it
+  share of ticks, and its own work on the others). SUMO's step then costs more than back
+  to back (2-3x in docs/scale.md): its caches cool, partly with the time spent elsewhere
+  alone, partly from the network's own use of them. This figure is the SUMO cost any
+  closed loop with this network pays on the measured host; the overhead ratio over it
   shows what the harness's own work adds;
 - the floor (a learned agent, for reading): in that replay the network calls are timed
   too. SUMO's step plus the network on the agent's share of ticks is what a closed loop
   costs whose own work (sensor inputs, BEV, controller, criteria, log) were free; over the
-  overhead ratio's reference it is the lowest ratio a harness could reach here (the replay
-  runs the network before every step, the loop on its share of ticks, so SUMO's part of
-  the floor is for the network on every tick: the true floor may sit a little lower);
+  overhead ratio's reference it is the lowest ratio a harness could reach on that host
+  (the replay runs the network before every step, the loop on its share of ticks, so
+  SUMO's part of the floor is for the network on every tick: the true floor may sit a
+  little lower);
 - rounds: the figures above are timed in ``rounds`` whole passes over the routes and
   reported from the median pass by the overhead ratio, with every pass's figures beside
-  it (one pass on this shared machine moved the ratio by up to a fifth between runs);
+  it (on a shared host one pass can move the ratio by up to a fifth between runs);
 - BEV render: one 64 x 64 x 9 frame, averaged over many frames of real snapshots;
-- collect: simulated seconds per wall second of one worker recording the expert (issue
-  #5's ">= 20"): ``run_job`` as ``sumo-scimm collect`` runs it, episode file and log saved.
+- collect: simulated seconds per wall second of one worker recording the expert (target
+  >= 20, ``collect_target``): ``run_job`` as ``sumo-scimm collect`` runs it, episode file
+  and log saved.
 """
 from __future__ import annotations
 
-import json
 import math
 import tempfile
 import time
@@ -48,7 +49,7 @@ import numpy as np
 from harness.sensors.bev import BevRenderer
 from harness.loop.episode import EpisodeLog, Scene, background_roads, run_episode, sensor_inputs
 from harness.sim.plan import build_plan
-from harness.runs.runner import Job, route_seed, run_job
+from harness.runs.jobs import Job, route_seed, run_job
 from harness.sim.world import World
 from controller.vehicle import EgoState
 from scenarios import resolve_set
@@ -110,8 +111,8 @@ def run_bench(routes_name: str = "town12_smoke", n_routes: int = 4, bev_frames: 
     ``network_between(inputs) -> call``: a function running the agent's network once, on
     the next of those inputs (for the replay with the network between steps).
 
-    The references are timed route by route, right after the route's episode: this
-    machine's speed moves between two levels within minutes (docs/scale.md), and a
+    The references are timed route by route, right after the route's episode: a shared
+    host's speed can move between two levels within minutes (docs/scale.md), and a
     reference timed minutes away from the step it divides can land on the other level.
     The figures of a round are means over the routes; ``per_route`` keeps each route's.
     With ``rounds`` > 1 the whole measurement runs that many times and the figures are
@@ -148,45 +149,20 @@ _ROUND_KEYS = ("harness_step_ms", "bare_libsumo_step_ms", "bare_inference_ms", "
 def _round(routes: list[Route], label: str, agent: str, agent_config: str | None,
            bare_inference: Callable[[list[dict]], float] | None,
            network_between: Callable[[list[dict]], Callable[[], object]] | None, snaps: list) -> dict:
-    """One pass of ``run_bench``'s closed-loop figures over ``routes``; appends the sampled
-    frames (ego, snapshot, plan, lights, props) to ``snaps`` for the BEV figure."""
-    harness_ms, bare_ms, same, shares, infer_ms = [], [], [], [], []
-    between_ms, between_net_ms = [], []  # the replay with the network between steps: SUMO, network
-    for k, route in enumerate(routes):
-        seed = route_seed(0, k)
-        kept, driver = [], {}
+    """One pass of ``run_bench``'s closed-loop figures over ``routes``: means over the
+    routes, each route's in ``per_route``; appends the sampled frames (ego, snapshot, plan,
+    lights, props) to ``snaps`` for the BEV figure."""
+    per = [_time_route(route, route_seed(0, k), agent, agent_config, bare_inference, network_between, snaps)
+           for k, route in enumerate(routes)]
 
-        def keep(f):
-            driver["agent"] = f.agent
-            if f.tick % SAMPLE_EVERY == 0:
-                kept.append(f)
+    def col(key: str) -> list[float]:  # a figure over the routes that have it
+        return [r[key] for r in per if key in r]
 
-        res = run_episode(route, agent, agent_config, seed, on_frame=keep)
-        if not res.steps:  # nothing to time: the agent could not be set up, or SUMO failed at once
-            raise BenchError(f"route {route.id}: {res.status} before its first tick ({res.message.splitlines()[0]})")
-        # the frame callback costs a dict write and, every SAMPLE_EVERY-th tick, a list append: negligible
-        harness_ms.append(1000 * res.loop_time / max(res.steps, 1))
-        a = driver.get("agent")
-        if getattr(a, "frames", 0):  # a student: the ticks that ran its network
-            shares.append(a.network_calls / a.frames)
-        ms, ok, _ = _bare_step_ms(route, seed, res.log)
-        bare_ms.append(ms)
-        same.append(ok)
-        bev = BevRenderer.for_town(route.town)
-        inputs = []
-        for f in kept:  # what the agent sees on the next tick (its progress: this tick's route index)
-            snaps.append((f.ego, f.snap, f.plan, f.lights, f.props))
-            progress = res.log.columns["route_index"][f.tick - 1]
-            inputs.append(sensor_inputs(f.agent.sensors(), f.ego, f.plan, progress, f.snap,
-                                        (f.snap, f.lights, f.props),
-                                        lambda f=f: bev.render(f.ego, f.snap, f.plan, f.lights, f.props)))
-        if bare_inference is not None and inputs:  # right after the episode, as the libsumo replay
-            infer_ms.append(bare_inference(inputs))
-        if network_between is not None and inputs:
-            ms, ok, net_ms = _bare_step_ms(route, seed, res.log, between=network_between(inputs))
-            between_ms.append(ms)
-            between_net_ms.append(net_ms)
-            same.append(ok)
+    harness_ms, bare_ms, shares, infer_ms = (col(k) for k in ("harness_step_ms", "bare_libsumo_step_ms",
+                                                              "network_share", "bare_inference_ms"))
+    # the replay with the network between steps: SUMO, network
+    between_ms, between_net_ms = col("bare_libsumo_network_between_ms"), col("network_between_call_ms")
+    same = [ok for r in per for ok in r["same"]]
     h, b = float(np.mean(harness_ms)), float(np.mean(bare_ms))
     out = {"routes": label, "agent": agent, "harness_step_ms": round(h, 3), "bare_libsumo_step_ms": round(b, 3),
            "harness_over_bare": round(h / b, 2) if b > 0 else math.nan, "replay_same_traffic": all(same)}
@@ -210,6 +186,48 @@ def _round(routes: list[Route], label: str, agent: str, agent_config: str | None
             out["per_route"]["network_between_call_ms"] = [round(v, 3) for v in between_net_ms]
             out["sumo_and_network_alternating_ms"] = round(bn + share * nn, 3)
             out["floor_over_bare_plus_inference"] = round((bn + share * nn) / (b + share * out["bare_inference_ms"]), 2)
+    return out
+
+
+def _time_route(route: Route, seed: int, agent: str, agent_config: str | None,
+                bare_inference: Callable[[list[dict]], float] | None,
+                network_between: Callable[[list[dict]], Callable[[], object]] | None, snaps: list) -> dict:
+    """The figures of one route [ms], each timed right after its episode: the harness step,
+    the bare libsumo step, and for a learned agent the bare inference, the replay with the
+    network between steps and the network call there; ``network_share`` when the agent
+    counts its network calls; ``same``: whether each replay reproduced the episode's traffic.
+    Appends the sampled frames to ``snaps``."""
+    kept, driver = [], {}
+
+    def keep(f):
+        driver["agent"] = f.agent
+        if f.tick % SAMPLE_EVERY == 0:
+            kept.append(f)
+
+    res = run_episode(route, agent, agent_config, seed, on_frame=keep)
+    if not res.steps:  # nothing to time: the agent could not be set up, or SUMO failed at once
+        raise BenchError(f"route {route.id}: {res.status} before its first tick ({res.message.splitlines()[0]})")
+    # the frame callback costs a dict write and, every SAMPLE_EVERY-th tick, a list append: negligible
+    out = {"harness_step_ms": 1000 * res.loop_time / max(res.steps, 1)}
+    a = driver.get("agent")
+    if getattr(a, "frames", 0):  # a student: the ticks that ran its network
+        out["network_share"] = a.network_calls / a.frames
+    ms, ok, _ = _bare_step_ms(route, seed, res.log)
+    out["bare_libsumo_step_ms"], out["same"] = ms, [ok]
+    bev = BevRenderer.for_town(route.town)
+    inputs = []
+    for f in kept:  # what the agent sees on the next tick (its progress: this tick's route index)
+        snaps.append((f.ego, f.snap, f.plan, f.lights, f.props))
+        progress = res.log.columns["route_index"][f.tick - 1]
+        inputs.append(sensor_inputs(f.agent.sensors(), f.ego, f.plan, progress, f.snap,
+                                    (f.snap, f.lights, f.props),
+                                    lambda f=f: bev.render(f.ego, f.snap, f.plan, f.lights, f.props)))
+    if bare_inference is not None and inputs:  # right after the episode, as the libsumo replay
+        out["bare_inference_ms"] = bare_inference(inputs)
+    if network_between is not None and inputs:
+        ms, ok, net_ms = _bare_step_ms(route, seed, res.log, between=network_between(inputs))
+        out["bare_libsumo_network_between_ms"], out["network_between_call_ms"] = ms, net_ms
+        out["same"].append(ok)
     return out
 
 
@@ -247,7 +265,3 @@ def format_bench(r: dict) -> str:
         f"  harness / bare        {r['harness_over_bare']:8.2f} x",
         f"  BEV render            {r['bev_render_ms']:8.4f} ms/frame  (target <= {r['bev_target_ms']} ms)",
     ])
-
-
-def bench_json(r: dict) -> str:
-    return json.dumps(r, indent=2)

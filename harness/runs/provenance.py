@@ -6,8 +6,8 @@ run inside the closed loop. ``run.json`` keeps it beside the route runs, with a 
 each agent's config file and, for an agent given as ``module:Class``, of its module file;
 ``--resume`` refuses to add records to a folder started with other software (harness.runs.runner),
 so the records of one run never mix two versions of the experiment: a new commit, another
-libsumo or another ONNX Runtime gives other trajectories (session 14 measured it for the
-runtime).
+libsumo or another ONNX Runtime gives other trajectories (measured for the runtime:
+docs/reliability.md).
 
 Strict on purpose: any change to a ``.py`` file of the stages counts, even one that cannot
 change a record (a docstring, the bench). Left out: the CPU type (records depend on it too,
@@ -98,7 +98,7 @@ def _agent_module(agent: str) -> str | None:
 
 
 def run_identity(jobs) -> dict:
-    """What makes the records of ``jobs`` (harness.runs.runner.Job) what they are: the software,
+    """What makes the records of ``jobs`` (harness.runs.jobs.Job) what they are: the software,
     and per route run key the seed, the route (a hash of its parsed definition), the agent
     (and, for ``module:Class``, its module file's digest), its config (an absolute path) and
     the config's digest, the rules, the step deadline and whether it records a dataset.
@@ -151,7 +151,7 @@ def check_same_run(out: Path, identity: dict, done: list[dict], adding: bool) ->
             raise BadInput(f"{out} was started with other software ({_difference(old['software'], identity['software'])}); "
                            f"its records would mix two versions: resume with the software it was started with, or {afresh}")
         old_runs = old.get("route_runs")
-    else:  # a run.json from before session 15: the route runs alone, without their configs' digests
+    else:  # an older run.json: the route runs alone, without their configs' digests
         if mixing:
             raise BadInput(unknown)
         old_runs = old

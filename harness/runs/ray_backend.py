@@ -7,7 +7,7 @@ for Ray Client) and only disconnects at the end.
 
 - One SUMO per process: a task runs in a fresh worker process (``max_calls=1``), so no
   libsumo state is ever shared between routes; it asks for 1 CPU.
-- Same records as the local backend: the task runs ``harness.runs.runner.run_job`` on the same
+- Same records as the local backend: the task runs ``harness.runs.jobs.run_job`` on the same
   Job (same seed); a task that raises is the route's "Failed - Simulation crashed" record,
   and so is a worker that dies (``max_retries=0``: never retried, as a dead local worker).
 - Results land on the driver: the task writes its episode log (and, for ``collect``, its
@@ -17,7 +17,10 @@ for Ray Client) and only disconnects at the end.
   stream back in completion order through the runner's ``emit``.
 
 Nodes need the project installed (``pip install 'sumo-scimm[ray]'``, same version as the
-driver): the task imports ``harness`` there.
+driver): the task imports ``harness`` there. A cluster with token authentication
+(docs/cluster.md) needs ``RAY_AUTH_MODE=token`` and the head's token on every node and on the
+driver; a driver without them stops at once with one line. Each task's line in workers.jsonl
+names its Ray node (``node``).
 """
 from __future__ import annotations
 
@@ -29,7 +32,7 @@ import tempfile
 from pathlib import Path
 
 from harness.common.atomic import write_atomic
-from harness.runs.runner import Job, crash_record, run_job_safely, worker_stats
+from harness.runs.jobs import Job, crash_record, run_job_safely, worker_stats
 
 OUTPUT_KINDS = ("logs", "episodes")  # folders of a task's files: Job.log_dir, Job.collect_dir
 CONNECT_TIMEOUT = 10.0  # s to reach the head node's port before ray.init (which would hang)
@@ -68,6 +71,41 @@ def _check_reachable(address: str) -> None:
                            "start one with 'ray start --head' or check the address") from None
 
 
+def _check_token(address: str) -> None:
+    """A ``host:port`` cluster with token authentication that this driver cannot join (no
+    token, or not the cluster's) is a user error, in one line and at once: ``ray.init``
+    would retry for about 20 s, then report a failed connection. Anything else is left to
+    ``ray.init``. Uses Ray 2.60's internals (pyproject bounds Ray); other names: no check."""
+    ray = _ray()
+    try:
+        from ray._private.authentication.authentication_token_setup import ensure_token_if_auth_enabled
+        from ray._raylet import GcsClient
+    except ImportError:
+        return
+    token = "RAY_AUTH_TOKEN to what `ray get-auth-token` prints on the cluster's head (docs/cluster.md)"
+    try:
+        ensure_token_if_auth_enabled(None, create_token_if_missing=False)  # ray.init's first check
+    except ray.exceptions.AuthenticationError:
+        raise BackendError(f"--address {address!r}: RAY_AUTH_MODE=token but no auth token is set: "
+                           f"set {token}") from None
+    saved, devnull = os.dup(2), os.open(os.devnull, os.O_WRONLY)
+    try:
+        os.dup2(devnull, 2)  # a refusal's C++ warning: the error below says it in one line
+        GcsClient(address=address)  # one attempt, about 1 s
+    except ray.exceptions.AuthenticationError:
+        if os.environ.get("RAY_AUTH_MODE", "").lower() == "token":
+            raise BackendError(f"--address {address!r}: the Ray cluster refused the auth token (RAY_AUTH_TOKEN, "
+                               f"RAY_AUTH_TOKEN_PATH or ~/.ray/auth_token): set {token}") from None
+        raise BackendError(f"--address {address!r}: the Ray cluster uses token authentication: "
+                           f"set RAY_AUTH_MODE=token and {token}") from None
+    except Exception:  # noqa: BLE001 - anything else is ray.init's to report
+        pass
+    finally:
+        os.dup2(saved, 2)
+        os.close(saved)
+        os.close(devnull)
+
+
 def _run_task(job: Job) -> tuple[dict, dict, dict[str, bytes]]:
     """In a Ray worker: run the job with its files in a temporary folder; returns the
     record, the worker's stats and the files ({"logs/<name>": bytes, ...})."""
@@ -80,7 +118,7 @@ def _run_task(job: Job) -> tuple[dict, dict, dict[str, bytes]]:
         rec = run_job_safely(here)
         files = {f"{kind}/{p.name}": p.read_bytes() for kind, d in folders.items()
                  for p in sorted(d.iterdir()) if not p.name.endswith(".tmp.npz")}
-    return rec, worker_stats(1), files
+    return rec, {**worker_stats(1), "node": _ray().get_runtime_context().get_node_id()}, files
 
 
 def _write_files(job: Job, files: dict[str, bytes]) -> None:
@@ -104,6 +142,8 @@ class RayPool:
             quiet = {"include_dashboard": False, "log_to_driver": False, "logging_level": logging.WARNING}
             if address:
                 _check_reachable(address)
+                if "://" not in address and address != "auto":
+                    _check_token(address)
                 try:
                     ray.init(address=address, **quiet)
                 except (ConnectionError, RuntimeError, ValueError) as exc:

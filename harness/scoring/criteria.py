@@ -3,21 +3,14 @@
 
 Each criterion keeps its own monotone index into the 1 m dense route (window rules of
 §2.2) and answers ``update(...) -> status or None``; the first non-None ends the route.
+The status texts are those of harness.scoring.statuses.
 """
 from __future__ import annotations
 
 import numpy as np
 
+from harness.scoring.statuses import COMPLETED, FAILED_BLOCKED, FAILED_DEVIATION, FAILED_TIMEOUT
 from harness.sim.plan import GlobalPlan, Progress
-
-# Leaderboard status texts (statistics_manager.py)
-COMPLETED = "Completed"
-FAILED_DEVIATION = "Failed - Agent deviated from the route"
-FAILED_BLOCKED = "Failed - Agent got blocked"
-FAILED_TIMEOUT = "Failed - Agent timed out"
-FAILED_AGENT = "Failed - Agent crashed"
-FAILED_SIMULATION = "Failed - Simulation crashed"
-FAILED_SETUP = "Failed - Agent couldn't be set up"
 
 
 class RouteCompletion:

@@ -25,9 +25,10 @@ import math
 import numpy as np
 
 from controller.vehicle import LENGTH
-from harness.scoring import criteria
 from harness.scoring.lanes import LaneIndex
-from harness.sim.hazards import SCENARIO_END, SCENARIO_TIMEOUT, TIMEOUT_HAZARDS
+from harness.scoring.statuses import STATUSES, ended_by_criterion
+from harness.sim.hazard_actor import SCENARIO_END, SCENARIO_TIMEOUT
+from harness.sim.hazards import TIMEOUT_HAZARDS
 from harness.sim.plan import GlobalPlan
 from harness.sim.world import PEDESTRIAN, STATIC, VEHICLE
 from scenarios.routefile import Route
@@ -229,15 +230,9 @@ def detect(log: dict, plan: GlobalPlan, route: Route, net, status: str, rules: s
     ev["red_light"] = red_lights(log, plan, net)
     ev["stop_infraction"] = stop_signs(log, plan)
     ev["outside_route_lanes"] = outside_lanes(log, plan, LaneIndex.for_town(route.town), spans)
-    ended_normally = status in (criteria.COMPLETED, criteria.FAILED_DEVIATION, criteria.FAILED_BLOCKED,
-                                criteria.FAILED_TIMEOUT)
-    ev["min_speed_infractions"] = min_speed(log, plan, rules, ended_normally)
+    ev["min_speed_infractions"] = min_speed(log, plan, rules, ended_by_criterion(status))
     ev["scenario_timeouts"] = scenario_timeouts(log, plan, spans)
-    x, y = log["x"][-1], log["y"][-1]
-    if status == criteria.FAILED_DEVIATION:
-        ev["route_dev"] = [f"Agent deviated from the route at {loc(x, y)}"]
-    elif status == criteria.FAILED_BLOCKED:
-        ev["vehicle_blocked"] = [f"Agent got blocked at {loc(x, y)}"]
-    elif status == criteria.FAILED_TIMEOUT:
-        ev["route_timeout"] = ["Route timeout."]
+    ending = STATUSES.get(status)
+    if ending is not None and ending.infraction:  # the criterion that ended the route, at the ego's last position
+        ev[ending.infraction] = [ending.infraction_message.format(at=loc(log["x"][-1], log["y"][-1]))]
     return ev

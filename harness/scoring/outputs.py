@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from harness.common.atomic import write_atomic
-from harness.runs.runner import RECORD_FIELDS, STABILITY
+from harness.scoring.records import RECORD_FIELDS, STABILITY
 from harness.scoring.scores import results
 
 BOOTSTRAP = 2000  # resamples

@@ -13,6 +13,7 @@ from __future__ import annotations
 import math
 
 from harness.scoring.infractions import KEYS
+from harness.scoring.statuses import COMPLETED, ENDING_INFRACTIONS, FAILED, PERFECT, failed
 
 RULES = ("lb2.0", "lb2.1", "b2d")
 # multiplicative penalty per event, Leaderboard 2.0
@@ -71,18 +72,17 @@ def infraction_penalty(infractions: dict[str, list[str]], rules: str = "lb2.0") 
 
 
 def route_status(score_route: float, infractions: dict[str, list[str]], crash: str = "") -> str:
-    """Leaderboard status text of a route: Perfect / Completed / Failed[ - message]."""
+    """Leaderboard status text of a route: Perfect / Completed / Failed[ - message]. The
+    message is that of the route-ending infraction present (harness.scoring.statuses), else
+    the caller's crash message."""
     n = sum(len(v) for v in infractions.values())
     if score_route >= 100:
-        return "Perfect" if n == 0 else "Completed"
+        return PERFECT if n == 0 else COMPLETED
     msg = crash
-    if infractions.get("route_timeout"):
-        msg = "Agent timed out"
-    if infractions.get("route_dev"):
-        msg = "Agent deviated from the route"
-    if infractions.get("vehicle_blocked"):
-        msg = "Agent got blocked"
-    return f"Failed - {msg}" if msg else "Failed"
+    for ending in ENDING_INFRACTIONS:  # in order of precedence: the last present wins
+        if infractions.get(ending.infraction):
+            msg = ending.message
+    return failed(msg)
 
 
 def route_record(index: int, route_id: str, infractions: dict[str, list[str]], rc: float,
@@ -121,6 +121,7 @@ def global_record(records: list[dict], total: int) -> dict:
     """The global record over ``total`` planned route runs (never-run ones count as 0)."""
     n = max(total, 1)
     keys = ("score_composed", "score_route", "score_penalty")
+    # paper eq. 14: DS, RC and IS are means over the routes
     means = {k: round(sum(r["scores"][k] for r in records) / n, 6) for k in keys}
     std = {k: 0.0 if n == 1 else round(math.sqrt(sum((r["scores"][k] - means[k]) ** 2 for r in records)
                                                  / (n - 1)), 3) for k in keys}
@@ -132,13 +133,13 @@ def global_record(records: list[dict], total: int) -> dict:
                                        for r in records if r["infractions"].get(k)), 3)
         else:
             infractions[k] = round(sum(len(r["infractions"].get(k, [])) for r in records) / km, 3)
-    status, exceptions = "Perfect", []
+    status, exceptions = PERFECT, []
     for r in records:
-        if "Failed" in r["status"]:
-            status = "Failed"
+        if FAILED in r["status"]:
+            status = FAILED
             exceptions.append([r["route_id"], r["index"], r["status"]])
-        elif r["status"] == "Completed" and status == "Perfect":
-            status = "Completed"
+        elif r["status"] == COMPLETED and status == PERFECT:
+            status = COMPLETED
     meta = {"total_length": round(sum(r["meta"]["route_length"] for r in records), 3),
             "duration_game": round(sum(r["meta"]["duration_game"] for r in records), 3),
             "duration_system": round(sum(r["meta"]["duration_system"] for r in records), 3),

@@ -5,8 +5,8 @@ corners of every actor's box into pixels (x 16, for OpenCV's 4-bit subpixel shif
 NumPy that is some 25 calls on a few hundred points, 60 us a frame standalone; each
 function here is one call. The arithmetic is NumPy's, operation by operation in the same
 order on the same doubles, so the pixels are equal bit for bit (tests/test_bev_pixels.py
-checks both against the NumPy code they replaced on random points and boxes; docs/scale.md,
-session 17, on 7,334 recorded frames):
+checks both against the NumPy code they replaced on random points and boxes and on 7,334
+recorded frames):
 
     box corner   x = (cx + cos(yaw) * (sx l/2)) - sin(yaw) * (sy w/2)
                  y = (cy + sin(yaw) * (sx l/2)) + cos(yaw) * (sy w/2),   (sx, sy) the

@@ -1,4 +1,5 @@
-"""Hazards in the running simulation (SPEC §2.3): each route hazard becomes an object
+"""Hazards in the running simulation (SPEC §2.3): each route hazard becomes an actor of
+its type's class (``make_hazard``; the interface is harness.sim.hazard_actor.HazardActor)
 that starts when the ego's route progress reaches its trigger point.
 
 Static things (the obstacle in the lane, the parked car hiding a jaywalker) exist from
@@ -19,17 +20,19 @@ scripted paths. At the end of its path a walker is removed, as the Leaderboard's
 pedestrian scenarios destroy theirs: released to SUMO, a walker that ``moveToXY`` had
 mapped onto a vehicle lane walked on along the road and, at the lane's end, SUMO stopped
 with "Disconnected walk" (val route 8). The cut-in vehicle drives on ahead of the ego
-(``_drive_on``). Positions are world frame [m]; s is route arc length [m].
+(``ParkingCutIn._drive_on``). Positions are world frame [m]; s is route arc length [m].
 """
 from __future__ import annotations
 
 import math
+from typing import ClassVar
 
 import libsumo
 import numpy as np
 import sumolib
 
 from controller.vehicle import DT
+from harness.sim.hazard_actor import HazardActor, Scripted, _add_person, _road_sides
 from harness.sim.plan import GlobalPlan, route_lane
 from harness.sim.world import PERSON_PREFIX, sumo_angle
 from scenarios.routefile import Hazard
@@ -39,200 +42,119 @@ FLOW_TIME = 25.0  # junction traffic keeps coming this long after the trigger [s
 HOLD_TIME = 3.0  # a hard-braking leader stays stopped this long [s]
 CUT_IN_SPEED = 6.0  # the cut-in vehicle drives on ahead at this speed [m/s]
 RED_HOLD = 6.0  # the switched light stays red this long after the ego could reach it [s]
-# moveToXY for walkers: bit 1 (place exactly, off-lane too) + bit 2 (ignore permissions).
-# With keepRoute 0 or 2, SUMO 1.28 segfaulted in simulationStep when a walker was moved
-# across a crosswalk (town12_short route 29); 6 does not.
-PERSON_KEEP_ROUTE = 6
-# Scenario timeouts (notes leaderboard2.md §3.7): hazards that can block the ego get 240 s
-# from their trigger to their own end (the ego this far past the site)
-SCENARIO_TIMEOUT = 240.0  # [s]
-TIMEOUT_HAZARDS = ("ParkedObstacle", "SignalizedJunction", "UnprotectedLeftTurn")
-SCENARIO_END = 10.0  # [m]
 
 
-def _road_sides(plan: GlobalPlan, net: sumolib.net.Net, s: float) -> tuple[float, float]:
-    """Distances [m] from the route centre to the right and left outer road borders at s
-    (sidewalks included, the opposite direction's edge included)."""
-    loc = route_lane(plan, net, s)  # the lane the route is on at s (it may change lanes along an edge)
-    if loc is None:
-        return 5.0, 5.0
-    edge, i = net.getEdge(loc[0]), loc[1]
-    widths = [ln.getWidth() for ln in edge.getLanes()]
-    right = widths[i] / 2 + sum(widths[:i])
-    left = widths[i] / 2 + sum(widths[i + 1:])
-    rev = f"{edge.getToNode().getID()}_{edge.getFromNode().getID()}"
-    if net.hasEdge(rev):
-        left += sum(ln.getWidth() for ln in net.getEdge(rev).getLanes())
-    return right, left
+class PedestrianCrossing(HazardActor):
+    """Walkers cross the crosswalk ``crossing`` from the ``direction`` side."""
 
-
-class Scripted:
-    """An actor moved by the harness from p0 to p1 at a constant speed [m/s]."""
-
-    def __init__(self, aid: str, p0: np.ndarray, p1: np.ndarray, speed: float, person: bool):
-        self.id, self.p0, self.p1, self.speed, self.person = aid, p0, p1, speed, person
-        self.dist = 0.0
-        self.total = float(np.hypot(*(p1 - p0)))
-        self.yaw = math.atan2(*(p1 - p0)[::-1])
-
-    def place(self) -> bool:
-        """Move one step along the path; False once the end is reached."""
-        f = min(self.dist / self.total, 1.0) if self.total > 0 else 1.0
-        x, y = self.p0 + f * (self.p1 - self.p0)
-        if self.person:
-            libsumo.person.moveToXY(self.id, "", x, y, sumo_angle(self.yaw), keepRoute=PERSON_KEEP_ROUTE)
-        else:
-            fx, fy = x + math.cos(self.yaw) * 2.3, y + math.sin(self.yaw) * 2.3
-            # the last placement maps the vehicle back onto its route's lane (keepRoute 1),
-            # so that SUMO drives it on after release; off-lane (2) it would stand still
-            libsumo.vehicle.moveToXY(self.id, "", -1, fx, fy, sumo_angle(self.yaw), keepRoute=1 if f >= 1.0 else 2)
-            libsumo.vehicle.setSpeed(self.id, self.speed)
-        self.dist += self.speed * DT
-        return f < 1.0
-
-
-def _add_person(pid: str, edge: str, x: float, y: float) -> None:
-    libsumo.person.add(pid, edge, 0.0)
-    libsumo.person.appendWaitingStage(pid, 10_000.0)
-    libsumo.person.moveToXY(pid, edge, x, y, keepRoute=PERSON_KEEP_ROUTE)
-
-
-class HazardActor:
-    """One hazard of a route in the running simulation."""
-
-    def __init__(self, h: Hazard, plan: GlobalPlan, net: sumolib.net.Net, rng: np.random.Generator, n: int):
-        self.h, self.plan, self.net, self.rng, self.n = h, plan, net, rng, n
-        self.trigger_s, _ = plan.path.project(h.trigger[0], h.trigger[1])
-        self.site_s = self.trigger_s + float(h.params["distance"])
-        self.started = False
-        self.t0 = 0.0
-        self.scripted: list[Scripted] = []
-        self.props: list[tuple[float, float, float, float, float]] = []  # x, y, yaw, length, width
-        self.spawned = 0
-        self.flow_next = 0.0
-        self.leader: str | None = None
-        self.leader_tries = 0
-        self.leader_on_road = False
-        self.brake_state = "drive"
-        self.cruise: tuple[str, float] | None = None  # cut-in vehicle driven on along the route: (id, s)
-        self.cleared_lane: str | None = None  # lane kept free of background traffic
-
-    def timeout_active(self, ego_s: float, time: float) -> bool:
-        """Whether this hazard's 240 s scenario timeout is running (Leaderboard: the
-        blocked check is off meanwhile): started, not passed, not yet timed out."""
-        return (self.started and self.h.type in TIMEOUT_HAZARDS
-                and ego_s < self.site_s + SCENARIO_END and time - self.t0 <= SCENARIO_TIMEOUT)
-
-    @property
-    def tag(self) -> str:
-        return f"hz{self.n}"
-
-    # --- lifecycle -------------------------------------------------------------------
-    def setup(self) -> None:
-        """Place the static parts (called once before the first step)."""
-        t = self.h.type
-        if t == "ParkedObstacle":
-            loc = route_lane(self.plan, self.net, self.site_s)
-            if loc is None:
-                return
-            edge, lane, pos = loc
-            vt = f"obstacle_{self.h.params['variant']}"
-            vid = f"{self.tag}_obstacle"
-            libsumo.route.add(f"r_{vid}", [edge])
-            libsumo.vehicle.add(vid, f"r_{vid}", typeID=vt, departLane=str(lane),
-                                departPos=f"{pos:.2f}", departSpeed="0")
-            libsumo.vehicle.setSpeedMode(vid, 0)
-            libsumo.vehicle.setLaneChangeMode(vid, 0)
-            libsumo.vehicle.setSpeed(vid, 0.0)
-            self.cleared_lane = f"{edge}_{lane}"
-        elif t == "DynamicObjectCrossing" and self.h.params["blocker"] == "parked_car":
-            x, y, yaw = self.plan.path.pose(self.site_s - 6.0)
-            right, _ = _road_sides(self.plan, self.net, self.site_s)
-            off = right - 0.4  # on the sidewalk / shoulder, its inner edge ~0.7 m clear of the ego's side
-            self.props.append((x + math.sin(yaw) * off, y - math.cos(yaw) * off, yaw, 4.6, 1.9))
-
-    def update(self, ego_s: float, time: float, ego_speed: float) -> None:
-        """Start at the trigger, then advance scripted actors and flows."""
-        if self.cleared_lane is not None:
-            self._clear_lane()
-        if not self.started:
-            if ego_s >= self.trigger_s:
-                self.started, self.t0 = True, time
-                self._start(ego_s, ego_speed)
-            return
-        for a in list(self.scripted):
-            if not a.place():
-                self.scripted.remove(a)
-                if a.person:  # it has crossed: gone, as in the Leaderboard's scenarios
-                    libsumo.person.remove(a.id)
-                else:  # the cut-in vehicle drives on ahead of the ego
-                    self.cruise = (a.id, self.site_s + 10.0)
-        if self.cruise is not None:
-            self._drive_on()
-        if self.h.type in ("SignalizedJunction", "StopSignJunction", "UnprotectedLeftTurn"):
-            if time - self.t0 <= FLOW_TIME and time >= self.flow_next:
-                self._spawn_flow()
-                self.flow_next = time + 60.0 / float(self.h.params["flow"])
-        if self.leader is not None:
-            self._leader(ego_s, time, ego_speed)
-
-    # --- per type ----------------------------------------------------------------------
     def _start(self, ego_s: float, ego_speed: float) -> None:
-        t, p = self.h.type, self.h.params
-        if t == "PedestrianCrossing":
-            lane = self.net.getLane(p["crossing"] + "_0")
-            a, b = (np.asarray(q[:2], dtype=float) for q in (lane.getShape()[0], lane.getShape()[-1]))
-            x, y, yaw = self.plan.path.pose(self.site_s)
-            right = (math.sin(yaw), -math.cos(yaw))
-            a_right = np.dot(a - (x, y), right) > np.dot(b - (x, y), right)
-            start, end = (a, b) if a_right == (p["direction"] == "right") else (b, a)
-            u = (end - start) / max(np.hypot(*(end - start)), 1e-6)
-            for k in range(int(p["walkers"])):
-                pid = f"{PERSON_PREFIX}_{self.tag}_{k}"
-                side = np.array([-u[1], u[0]]) * (k - (int(p["walkers"]) - 1) / 2) * 0.8
-                p0 = start - u * (CURB_MARGIN + 0.7 * k) + side
-                p1 = end + u * CURB_MARGIN + side
-                _add_person(pid, self.plan.path.legs[0].edge, *p0)
-                self.scripted.append(Scripted(pid, p0, p1, float(p["speed"]), person=True))
-        elif t == "DynamicObjectCrossing":
-            x, y, yaw = self.plan.path.pose(self.site_s)
-            right, left = _road_sides(self.plan, self.net, self.site_s)
-            r = np.array([math.sin(yaw), -math.cos(yaw)])
-            sign = 1.0 if p["direction"] == "right" else -1.0
-            p0 = np.array([x, y]) + sign * r * ((right if sign > 0 else left) + CURB_MARGIN)
-            p1 = np.array([x, y]) - sign * r * ((left if sign > 0 else right) + CURB_MARGIN)
-            pid = f"{PERSON_PREFIX}_{self.tag}"
+        p = self.hazard.params
+        lane = self.net.getLane(p["crossing"] + "_0")
+        a, b = (np.asarray(q[:2], dtype=float) for q in (lane.getShape()[0], lane.getShape()[-1]))
+        x, y, yaw = self.plan.path.pose(self.site_s)
+        right = (math.sin(yaw), -math.cos(yaw))
+        a_right = np.dot(a - (x, y), right) > np.dot(b - (x, y), right)
+        start, end = (a, b) if a_right == (p["direction"] == "right") else (b, a)
+        u = (end - start) / max(np.hypot(*(end - start)), 1e-6)
+        for k in range(int(p["walkers"])):
+            pid = f"{PERSON_PREFIX}_{self.tag}_{k}"
+            side = np.array([-u[1], u[0]]) * (k - (int(p["walkers"]) - 1) / 2) * 0.8
+            p0 = start - u * (CURB_MARGIN + 0.7 * k) + side
+            p1 = end + u * CURB_MARGIN + side
             _add_person(pid, self.plan.path.legs[0].edge, *p0)
             self.scripted.append(Scripted(pid, p0, p1, float(p["speed"]), person=True))
-        elif t == "HardBreakRoute":
-            self.leader = f"{self.tag}_leader"
-            self._add_leader(ego_s, ego_speed)
-        elif t == "ParkingCutIn":
-            loc = route_lane(self.plan, self.net, self.site_s)
-            if loc is None:
-                return
-            edge, lane, _ = loc
-            x0, y0, yaw0 = self.plan.path.pose(self.site_s - 4.0)
-            x1, y1, _ = self.plan.path.pose(self.site_s + 10.0)
-            r = np.array([math.sin(yaw0), -math.cos(yaw0)])
-            right, left = _road_sides(self.plan, self.net, self.site_s)
-            off = (right - 0.8) if p["source"] == "parking" else -3.3
-            p0 = np.array([x0, y0]) + r * off
-            legs = [g.edge for g in self.plan.path.legs]
-            vid = f"{self.tag}_cutin"
-            libsumo.route.add(f"r_{vid}", legs[legs.index(edge):])
-            libsumo.vehicle.add(vid, f"r_{vid}", typeID="hazard", departLane=str(lane), departPos="0",
-                                departSpeed="0")
-            libsumo.vehicle.setSpeedMode(vid, 0)
-            libsumo.vehicle.setLaneChangeMode(vid, 0)
-            self.scripted.append(Scripted(vid, p0, np.array([x1, y1]), 4.0, person=False))
-        elif t == "SignalizedJunction":
-            self._switch_to_red(ego_s, ego_speed)
+
+
+class DynamicObjectCrossing(HazardActor):
+    """A walker crosses the road at the site, perpendicular to it, from the ``direction``
+    side; with ``blocker=parked_car`` a harness-only parked car stands before the site."""
+
+    def setup(self) -> None:
+        if self.hazard.params["blocker"] != "parked_car":
+            return
+        x, y, yaw = self.plan.path.pose(self.site_s - 6.0)
+        right, _ = _road_sides(self.plan, self.net, self.site_s)
+        off = right - 0.4  # on the sidewalk / shoulder, its inner edge ~0.7 m clear of the ego's side
+        self.props.append((x + math.sin(yaw) * off, y - math.cos(yaw) * off, yaw, 4.6, 1.9))
+
+    def _start(self, ego_s: float, ego_speed: float) -> None:
+        p = self.hazard.params
+        x, y, yaw = self.plan.path.pose(self.site_s)
+        right, left = _road_sides(self.plan, self.net, self.site_s)
+        r = np.array([math.sin(yaw), -math.cos(yaw)])
+        sign = 1.0 if p["direction"] == "right" else -1.0
+        p0 = np.array([x, y]) + sign * r * ((right if sign > 0 else left) + CURB_MARGIN)
+        p1 = np.array([x, y]) - sign * r * ((left if sign > 0 else right) + CURB_MARGIN)
+        pid = f"{PERSON_PREFIX}_{self.tag}"
+        _add_person(pid, self.plan.path.legs[0].edge, *p0)
+        self.scripted.append(Scripted(pid, p0, p1, float(p["speed"]), person=True))
+
+
+class ParkedObstacle(HazardActor):
+    """A stopped vehicle of type ``obstacle_<variant>`` in the ego lane at the site; its
+    lane is kept free of background traffic."""
+
+    has_timeout = True
+
+    def __init__(self, hazard: Hazard, plan: GlobalPlan, net: sumolib.net.Net, rng: np.random.Generator,
+                 n: int):
+        super().__init__(hazard, plan, net, rng, n)
+        self.cleared_lane: str | None = None  # lane kept free of background traffic
+
+    def quiet_span(self) -> tuple[float, float]:
+        """100 m before to 150 m past the obstacle."""
+        return self.site_s - 100.0, self.site_s + 150.0
+
+    def setup(self) -> None:
+        loc = route_lane(self.plan, self.net, self.site_s)
+        if loc is None:
+            return
+        edge, lane, pos = loc
+        vt = f"obstacle_{self.hazard.params['variant']}"
+        vid = f"{self.tag}_obstacle"
+        libsumo.route.add(f"r_{vid}", [edge])
+        libsumo.vehicle.add(vid, f"r_{vid}", typeID=vt, departLane=str(lane),
+                            departPos=f"{pos:.2f}", departSpeed="0")
+        libsumo.vehicle.setSpeedMode(vid, 0)
+        libsumo.vehicle.setLaneChangeMode(vid, 0)
+        libsumo.vehicle.setSpeed(vid, 0.0)
+        self.cleared_lane = f"{edge}_{lane}"
+
+    def update(self, ego_s: float, time: float, ego_speed: float) -> None:
+        """The obstacle's lane cleared every tick, before and after the trigger."""
+        if self.cleared_lane is not None:
+            self._clear_lane()
+        super().update(ego_s, time, ego_speed)
+
+    def _clear_lane(self) -> None:
+        """Remove background vehicles from the obstacle's lane, as the Leaderboard's
+        obstacle scenarios do (RemoveRoadLane): SUMO traffic cannot pass the obstacle
+        and would queue behind it for good, with the ego behind them."""
+        for vid in libsumo.lane.getLastStepVehicleIDs(self.cleared_lane):
+            if vid.startswith(("bg", "bub")):
+                libsumo.vehicle.remove(vid)
+
+
+class HardBreakRoute(HazardActor):
+    """A leader inserted ``gap`` m ahead of the ego at the trigger brakes at ``decel``
+    [m/s^2] to a stop at the site, stands HOLD_TIME s, then drives on."""
+
+    def __init__(self, hazard: Hazard, plan: GlobalPlan, net: sumolib.net.Net, rng: np.random.Generator,
+                 n: int):
+        super().__init__(hazard, plan, net, rng, n)
+        self.leader = f"{self.tag}_leader"
+        self.leader_tries = 0
+        self.leader_on_road = False
+        self.brake_state = "drive"  # drive -> brake -> done
+        self.t_brake = 0.0  # simulation time [s] the leader is expected to stand still
+
+    def _start(self, ego_s: float, ego_speed: float) -> None:
+        self._add_leader(ego_s, ego_speed)
 
     def _add_leader(self, ego_s: float, ego_speed: float) -> None:
-        """Insert the HardBreakRoute leader ``gap`` m ahead of the ego, in the route's lane
-        (not yet if that point lies inside a junction)."""
-        loc = route_lane(self.plan, self.net, ego_s + float(self.h.params["gap"]))
+        """Insert the leader ``gap`` m ahead of the ego, in the route's lane (not yet if
+        that point lies inside a junction)."""
+        loc = route_lane(self.plan, self.net, ego_s + float(self.hazard.params["gap"]))
         if loc is None:
             return
         edge, lane, pos = loc
@@ -254,13 +176,68 @@ class HazardActor:
                                 departPos=f"{pos:.2f}", departSpeed="desired")
         libsumo.vehicle.setLaneChangeMode(vid, 0)
 
-    def _clear_lane(self) -> None:
-        """Remove background vehicles from the obstacle's lane, as the Leaderboard's
-        obstacle scenarios do (RemoveRoadLane): SUMO traffic cannot pass the obstacle
-        and would queue behind it for good, with the ego behind them."""
-        for vid in libsumo.lane.getLastStepVehicleIDs(self.cleared_lane):
-            if vid.startswith(("bg", "bub")):
-                libsumo.vehicle.remove(vid)
+    def _tick(self, ego_s: float, time: float, ego_speed: float) -> None:
+        vid = self.leader
+        if vid not in libsumo.vehicle.getIDList():
+            if not self.leader_on_road:
+                # not inserted yet: ``gap`` m ahead of the ego lay inside a junction, or SUMO
+                # found no safe gap there and would insert it later, wherever the ego is by
+                # then (beside it, route 50): place it ``gap`` m ahead of the ego now
+                if vid in libsumo.simulation.getPendingVehicles():
+                    libsumo.vehicle.remove(vid)
+                self._add_leader(ego_s, ego_speed)
+            return
+        self.leader_on_road = True
+        if self.brake_state == "drive":
+            x, y = libsumo.vehicle.getPosition(vid)
+            s, d = self.plan.path.project(x, y, self.trigger_s)
+            if d < 5.0 and s >= self.site_s:
+                v = libsumo.vehicle.getSpeed(vid)
+                decel = float(self.hazard.params["decel"])
+                libsumo.vehicle.setDecel(vid, decel)  # setSpeed(0) brakes at the type's decel
+                libsumo.vehicle.setSpeed(vid, 0.0)
+                self.brake_state, self.t_brake = "brake", time + v / decel
+        elif self.brake_state == "brake" and time >= self.t_brake + HOLD_TIME:
+            libsumo.vehicle.setSpeed(vid, -1)
+            self.brake_state = "done"
+
+
+class ParkingCutIn(HazardActor):
+    """At the trigger a vehicle pulls from the curb (``source=parking``) or the left lane
+    into the ego lane before the site, then drives on ahead of the ego."""
+
+    def __init__(self, hazard: Hazard, plan: GlobalPlan, net: sumolib.net.Net, rng: np.random.Generator,
+                 n: int):
+        super().__init__(hazard, plan, net, rng, n)
+        self.cruise: tuple[str, float] | None = None  # the vehicle driven on along the route: (id, s [m])
+
+    def _start(self, ego_s: float, ego_speed: float) -> None:
+        loc = route_lane(self.plan, self.net, self.site_s)
+        if loc is None:
+            return
+        edge, lane, _ = loc
+        x0, y0, yaw0 = self.plan.path.pose(self.site_s - 4.0)
+        x1, y1, _ = self.plan.path.pose(self.site_s + 10.0)
+        r = np.array([math.sin(yaw0), -math.cos(yaw0)])
+        right, _ = _road_sides(self.plan, self.net, self.site_s)
+        off = (right - 0.8) if self.hazard.params["source"] == "parking" else -3.3
+        p0 = np.array([x0, y0]) + r * off
+        legs = [g.edge for g in self.plan.path.legs]
+        vid = f"{self.tag}_cutin"
+        libsumo.route.add(f"r_{vid}", legs[legs.index(edge):])
+        libsumo.vehicle.add(vid, f"r_{vid}", typeID="hazard", departLane=str(lane), departPos="0",
+                            departSpeed="0")
+        libsumo.vehicle.setSpeedMode(vid, 0)
+        libsumo.vehicle.setLaneChangeMode(vid, 0)
+        self.scripted.append(Scripted(vid, p0, np.array([x1, y1]), 4.0, person=False))
+
+    def _arrived(self, a: Scripted) -> None:
+        """The cut-in is done: the vehicle drives on ahead of the ego from 10 m past the site."""
+        self.cruise = (a.id, self.site_s + 10.0)
+
+    def _tick(self, ego_s: float, time: float, ego_speed: float) -> None:
+        if self.cruise is not None:
+            self._drive_on()
 
     def _drive_on(self) -> None:
         """Move the cut-in vehicle along the route at CUT_IN_SPEED, then remove it.
@@ -280,24 +257,28 @@ class HazardActor:
         libsumo.vehicle.setSpeed(vid, CUT_IN_SPEED)
         self.cruise = (vid, s)
 
-    def _switch_to_red(self, ego_s: float, ego_speed: float) -> None:
-        """Turn the ego's light red now, for as long as the ego needs to reach it plus
-        RED_HOLD seconds: a red light the ego must stop at, not a half-minute wait."""
-        pas = next((q for q in self.plan.passages if q.junction == self.h.params["junction"] and q.tls), None)
-        if pas is None:
-            return
-        logic = libsumo.trafficlight.getAllProgramLogics(pas.tls)[0]
-        states = [ph.state for ph in logic.phases]
-        for k, st in enumerate(states):
-            if st[pas.link] in "rR" and states[k - 1][pas.link] in "yY":
-                libsumo.trafficlight.setPhase(pas.tls, k)
-                arrive = max(pas.s_in - ego_s, 0.0) / max(ego_speed, 3.0)
-                libsumo.trafficlight.setPhaseDuration(pas.tls, min(arrive + RED_HOLD, logic.phases[k].duration))
-                return
+
+class _JunctionFlow(HazardActor):
+    """Traffic at junction ``junction``: from the trigger on, for FLOW_TIME s, ``flow``
+    vehicles per minute from every incoming edge whose traffic crosses the ego's path
+    (``ONCOMING`` False) or meets it head-on (True)."""
+
+    ONCOMING: ClassVar[bool] = False
+
+    def __init__(self, hazard: Hazard, plan: GlobalPlan, net: sumolib.net.Net, rng: np.random.Generator,
+                 n: int):
+        super().__init__(hazard, plan, net, rng, n)
+        self.spawned = 0
+        self.flow_next = 0.0  # simulation time [s] of the next vehicles
+
+    def _tick(self, ego_s: float, time: float, ego_speed: float) -> None:
+        if time - self.t0 <= FLOW_TIME and time >= self.flow_next:
+            self._spawn_flow()
+            self.flow_next = time + 60.0 / float(self.hazard.params["flow"])
 
     def _approaches(self) -> list[str]:
-        """Incoming edges whose traffic crosses (or, for a left turn, meets) the ego's path."""
-        pas = next((q for q in self.plan.passages if q.junction == self.h.params["junction"]), None)
+        """Incoming edges whose traffic crosses (or, ONCOMING, meets) the ego's path."""
+        pas = next((q for q in self.plan.passages if q.junction == self.hazard.params["junction"]), None)
         if pas is None:
             return []
         node = self.net.getNode(pas.junction)
@@ -314,11 +295,12 @@ class HazardActor:
                 continue
             d = abs((heading(e) - h0 + math.pi) % (2 * math.pi) - math.pi)
             oncoming = d > math.radians(135)
-            if (self.h.type == "UnprotectedLeftTurn") == oncoming:
+            if self.ONCOMING == oncoming:
                 out.append(e.getID())
         return out
 
     def _spawn_flow(self) -> None:
+        """One vehicle on each approach, 45-60 m before the junction, going straight on."""
         for edge_id in self._approaches():
             e = self.net.getEdge(edge_id)
             straight = [c.getTo().getID() for c in e.getOutgoing() for c in e.getConnections(c)
@@ -333,27 +315,55 @@ class HazardActor:
             libsumo.vehicle.add(vid, f"r_{vid}", typeID="hazard", departLane="best",
                                 departPos=f"{pos:.2f}", departSpeed="max")
 
-    def _leader(self, ego_s: float, time: float, ego_speed: float) -> None:
-        vid = self.leader
-        if vid not in libsumo.vehicle.getIDList():
-            if not self.leader_on_road:
-                # not inserted yet: ``gap`` m ahead of the ego lay inside a junction, or SUMO
-                # found no safe gap there and would insert it later, wherever the ego is by
-                # then (beside it, route 50): place it ``gap`` m ahead of the ego now
-                if vid in libsumo.simulation.getPendingVehicles():
-                    libsumo.vehicle.remove(vid)
-                self._add_leader(ego_s, ego_speed)
+
+class SignalizedJunction(_JunctionFlow):
+    """Cross traffic, and the ego's light switched to red at the trigger."""
+
+    has_timeout = True
+
+    def _start(self, ego_s: float, ego_speed: float) -> None:
+        self._switch_to_red(ego_s, ego_speed)
+
+    def _switch_to_red(self, ego_s: float, ego_speed: float) -> None:
+        """Turn the ego's light red now, for as long as the ego needs to reach it plus
+        RED_HOLD seconds: a red light the ego must stop at, not a half-minute wait."""
+        pas = next((q for q in self.plan.passages if q.junction == self.hazard.params["junction"] and q.tls), None)
+        if pas is None:
             return
-        self.leader_on_road = True
-        if self.brake_state == "drive":
-            x, y = libsumo.vehicle.getPosition(vid)
-            s, d = self.plan.path.project(x, y, self.trigger_s)
-            if d < 5.0 and s >= self.site_s:
-                v = libsumo.vehicle.getSpeed(vid)
-                decel = float(self.h.params["decel"])
-                libsumo.vehicle.setDecel(vid, decel)  # setSpeed(0) brakes at the type's decel
-                libsumo.vehicle.setSpeed(vid, 0.0)
-                self.brake_state, self.t_brake = "brake", time + v / decel
-        elif self.brake_state == "brake" and time >= self.t_brake + HOLD_TIME:
-            libsumo.vehicle.setSpeed(vid, -1)
-            self.brake_state = "done"
+        logic = libsumo.trafficlight.getAllProgramLogics(pas.tls)[0]
+        states = [ph.state for ph in logic.phases]
+        for k, st in enumerate(states):
+            if st[pas.link] in "rR" and states[k - 1][pas.link] in "yY":
+                libsumo.trafficlight.setPhase(pas.tls, k)
+                arrive = max(pas.s_in - ego_s, 0.0) / max(ego_speed, 3.0)
+                libsumo.trafficlight.setPhaseDuration(pas.tls, min(arrive + RED_HOLD, logic.phases[k].duration))
+                return
+
+
+class StopSignJunction(_JunctionFlow):
+    """Cross traffic at a stop-sign junction."""
+
+
+class UnprotectedLeftTurn(_JunctionFlow):
+    """Oncoming traffic at the junction where the ego turns left."""
+
+    has_timeout = True
+    ONCOMING = True
+
+
+# hazard type (scenarios.hazards.HAZARDS) -> its actor class
+HAZARD_ACTORS: dict[str, type[HazardActor]] = {cls.__name__: cls for cls in (
+    PedestrianCrossing, DynamicObjectCrossing, ParkedObstacle, HardBreakRoute, ParkingCutIn,
+    SignalizedJunction, StopSignJunction, UnprotectedLeftTurn)}
+# the hazard types a Leaderboard scenario timeout applies to
+TIMEOUT_HAZARDS = tuple(name for name, cls in HAZARD_ACTORS.items() if cls.has_timeout)
+
+
+def make_hazard(hazard: Hazard, plan: GlobalPlan, net: sumolib.net.Net, rng: np.random.Generator,
+                n: int) -> HazardActor:
+    """The actor of hazard ``n`` of a route, of its type's class; ValueError for an
+    unknown type."""
+    cls = HAZARD_ACTORS.get(hazard.type)
+    if cls is None:
+        raise ValueError(f"hazard {hazard.name!r}: unknown type {hazard.type!r} (known: {', '.join(HAZARD_ACTORS)})")
+    return cls(hazard, plan, net, rng, n)

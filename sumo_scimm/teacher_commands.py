@@ -1,4 +1,4 @@
-"""``sumo-scimm teacher ...`` subcommands (registered by ``sumo_scimm.cli``).
+"""``sumo-scimm teacher ...``: the teacher stage's subcommands (SPEC §6).
 
     sumo-scimm teacher --data DIR [--method fixed|scimm|all]
         writes DIR/teacher/<method>/ (scimm.teacher), then, when both the fixed and the
@@ -13,51 +13,25 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from tqdm import tqdm
-
-from harness.common.atomic import write_atomic
 from harness.common.errors import BadInput
 from scimm import teacher as tch
+from scimm.stage import dataset_episodes, make_teachers, write_tables
 
 METHOD_CHOICES = (*tch.METHODS, "all")
 
 
-def _dataset(data: str | None) -> tuple[Path, list[Path]]:
-    if not data:
-        raise BadInput("--data DIR is required (a dataset folder made by 'sumo-scimm collect')")
-    folder = Path(data)
-    files = tch.episode_files(folder) if (folder / "episodes").is_dir() else []
-    if not files:
-        raise BadInput(f"{folder} is not a dataset folder (no episodes/*.npz; make one with 'sumo-scimm collect')")
-    return folder, files
-
-
-def _write_csv(table, path: Path) -> None:
-    write_atomic(path, lambda tmp: table.to_csv(tmp, index=False))
-
-
 def _teacher(args: argparse.Namespace) -> int:
-    from scimm.modes import IMMConfig
-    from scimm.table2 import evaluate, format_meaning, format_residuals, format_table2
-    folder, files = _dataset(args.data)
-    cfg = IMMConfig()
-    methods = tch.METHODS if args.method == "all" else (args.method,)
-    for method in methods:
-        with tqdm(total=len(files), desc=f"teacher {method}", unit="episode", disable=None) as bar:
-            labels = tch.teach(files, method, cfg, progress=bar.update)
-        out = tch.write_teacher(folder, method, labels, cfg, files)
-        tqdm.write(f"{method}: {len(labels)} episodes -> {out}")
+    from scimm.table2 import format_meaning, format_residuals, format_table2
+    folder, files = dataset_episodes(args.data)
+    make_teachers(folder, files, tch.METHODS if args.method == "all" else (args.method,))
     if not all(tch.is_complete(folder, m) for m in ("fixed", "scimm")):
         print("Table 2 needs both teachers: run with --method all")
         return 0
-    table, meaning, residuals = evaluate(folder, files)
-    _write_csv(table, folder / "teacher" / "table2.csv")
-    _write_csv(meaning, folder / "teacher" / "mode_meaning.csv")
+    table, meaning, residuals = write_tables(folder, files)
     print(f"Table 2 ({len(files)} episodes; groups = dominant SC-IMM mode) -> {folder / 'teacher' / 'table2.csv'}")
     print(format_table2(table))
     print("\nMode meaning: frames of each situation whose dominant mode means it")
     print(format_meaning(meaning))
-    _write_csv(residuals, folder / "teacher" / "fit_residuals.csv")
     print("\nFit residual of the observation z (paper eq. 2-3) against the expert's labels, per dominant "
           f"SC-IMM mode -> {folder / 'teacher' / 'fit_residuals.csv'}")
     print(format_residuals(residuals))
@@ -66,7 +40,7 @@ def _teacher(args: argparse.Namespace) -> int:
 
 def _plot(args: argparse.Namespace) -> int:
     from scimm.plot import plot_posterior
-    folder, files = _dataset(args.data)
+    folder, files = dataset_episodes(args.data)
     match = [f for f in files if f.stem == args.episode]
     if not match:
         stems = [f.stem for f in files]
@@ -75,13 +49,12 @@ def _plot(args: argparse.Namespace) -> int:
         raise BadInput(f"--out {args.out!r} must end in .png")
     if not Path(args.out).resolve().parent.is_dir():
         raise BadInput(f"--out {args.out!r}: folder does not exist")
-    out = plot_posterior(match[0], Path(args.out), method=args.method)
-    print(f"{out}")
+    print(plot_posterior(match[0], Path(args.out), method=args.method))
     return 0
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    """Add this stage's subcommands to the ``sumo-scimm`` parser."""
+    """Add ``teacher`` and ``teacher plot``."""
     t = sub.add_parser("teacher", help="SC-IMM teacher signals of a dataset, Table 2; 'teacher plot' for Fig. 4")
     t.add_argument("--data", help="dataset folder (of 'sumo-scimm collect')")
     t.add_argument("--method", default="all", choices=METHOD_CHOICES,
@@ -94,4 +67,3 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--out", required=True, help="figure file (.png)")
     p.add_argument("--method", default="scimm", choices=tch.METHODS, help="posterior to plot (default scimm)")
     p.set_defaults(func=_plot)
-

@@ -1,0 +1,124 @@
+"""The figures of ``sumo-scimm bench`` that span stages: every performance figure of
+SPEC §11, each beside its reference measured in the same run (the command in
+sumo_scimm.bench_commands prints them as a table and optionally writes them as JSON).
+
+- closed loop (``harness.runs.bench``): harness step with the chosen agent against bare libsumo
+  stepping of the same traffic with the ego replayed, plus, for a student, its bare
+  inference (its own checkpoint's ``predict`` on inputs recorded in the same episodes, one
+  thread), and, for reading, the libsumo replay with that network run between steps and
+  the ratio's floor (SUMO and the network alternating, nothing else); BEV render;
+- teacher (``scimm.bench``): batched IMM frames per second on one core against filterpy's
+  IMMEstimator on the same sequences, and the largest difference between them;
+- student (``model.bench``): training samples per second on 2 threads, inference ms per
+  frame at batch 1 on one thread;
+- collect (``harness.runs.bench.collect_rate``): simulated seconds per wall second of one worker
+  recording the expert as ``sumo-scimm collect`` does;
+- with ``--eval``: wall time of a whole ``town12_short`` evaluation on 2 workers with the
+  agent, and the worker memory (RSS) over it.
+
+The closed-loop figures and the IMM's are the median of ``--rounds`` passes (fresh
+processes for the IMM), every pass printed and written beside it.
+
+The run prints and writes the machine it ran on (CPU model, cores, torch's kernels,
+versions). Figures are for reading, never asserted in a test; they depend on the machine
+and its load.
+"""
+from __future__ import annotations
+
+import itertools
+import json
+import tempfile
+import time
+from pathlib import Path
+
+EVAL_TARGET_S, OVERHEAD_TARGET, RSS_TARGET_MB, REPRODUCE_TARGET_S = 180.0, 2.0, 800.0, 3600.0
+
+
+def eval_figures(agent: str, agent_config: str | None, workers: int, routes: str = "town12_short",
+                 repetitions: int = 1) -> dict:
+    """Wall time and worker memory of ``sumo-scimm eval`` on ``routes`` (``repetitions``
+    passes) with ``workers`` workers, in a temporary run folder."""
+    from harness.runs.evaluate import Backend, evaluate
+    with tempfile.TemporaryDirectory(prefix="sumo-scimm-bench-") as tmp:
+        t0 = time.perf_counter()
+        res = evaluate(routes, agent, agent_config, Path(tmp) / "run", repetitions=repetitions,
+                       backend=Backend(workers))
+        wall = time.perf_counter() - t0
+        return {"eval_wall_s": round(wall, 1), "eval_workers": workers, "eval_target_s": EVAL_TARGET_S,
+                "rss": res.memory, "rss_target_mb": RSS_TARGET_MB, "routes": routes, "repetitions": repetitions,
+                "route_runs": len(res.records)}
+
+
+def reproduce_figure(folder: str) -> dict:
+    """The stage wall times a finished ``sumo-scimm reproduce`` recorded in FOLDER/stages.json
+    (measured when it ran, not now: reproduce takes about an hour)."""
+    from harness.common.errors import BadInput
+    path = Path(folder) / "stages.json"
+    try:
+        times = json.loads(path.read_text())
+        total = float(sum(times.values()))
+    except (OSError, ValueError, TypeError, AttributeError) as exc:
+        raise BadInput(f"--reproduce {folder}: no readable stages.json of 'sumo-scimm reproduce' ({exc})") from None
+    return {"reproduce_dir": str(folder), "reproduce_wall_s": round(total, 1), "stages": len(times),
+            "reproduce_target_s": REPRODUCE_TARGET_S}
+
+
+def machine() -> dict:
+    """What the figures were measured on: CPU model, cores, the kernels torch picked, and the
+    versions that set the per-tick cost (torch trains the student, ONNX Runtime runs it in
+    the closed loop). Figures of two runs compare only on the same kind of machine (and a
+    student's records only on the same CPU type: docs/reliability.md)."""
+    import importlib.metadata
+    import os
+    import platform
+
+    import torch
+    cpu = platform.processor() or platform.machine()
+    try:
+        with open("/proc/cpuinfo") as f:
+            cpu = next((ln.split(":", 1)[1].strip() for ln in f if ln.startswith("model name")), cpu)
+    except OSError:  # not Linux
+        pass
+    return {"cpu": cpu, "cores": os.cpu_count(), "torch": torch.__version__,
+            "torch_cpu_capability": torch.backends.cpu.get_cpu_capability(),
+            "onnxruntime": importlib.metadata.version("onnxruntime"),  # the student's runtime (model.runtime)
+            "libsumo": importlib.metadata.version("libsumo"), "numpy": importlib.metadata.version("numpy"),
+            "python": platform.python_version()}
+
+
+def bare_inference(agent_name: str, agent_config: str | None):
+    """For a student agent: (a function timing its own network call (binarised BEV, target
+    point, speed in; path and speed waypoints out: ``infer`` after ``binarize``, what
+    ``predict`` runs on a tick whose inputs are new) on recorded sensor inputs, with its
+    checkpoint and thread setting, ms per call; a function giving a call that runs that
+    network once on the next of such inputs, for ``run_bench``'s ``network_between``);
+    else (None, None)."""
+    from harness.loop.agent import load_agent
+    from model.agent import StudentAgent
+    from model.cache import binarize
+    agent = load_agent(agent_name)
+    if not isinstance(agent, StudentAgent):
+        return None, None
+
+    def network_between(inputs: list[dict]):
+        agent.setup(agent_config)  # the checkpoint, in ONNX Runtime on INFERENCE_THREADS threads
+        frames = [(d["bev"], d["target_point"], float(d["speed"])) for d in inputs]
+        calls = itertools.count()
+
+        def call():  # what infer_ms times: binarise, then the network
+            bev, tp, speed = frames[next(calls) % len(frames)]
+            agent.infer(binarize(bev), tp, speed)
+        return call
+
+    def infer_ms(inputs: list[dict], calls: int = 500, warmup: int = 20) -> float:
+        agent.setup(agent_config)
+        frames = [(d["bev"], d["target_point"], float(d["speed"])) for d in inputs]
+        for i in range(warmup):
+            bev, tp, speed = frames[i % len(frames)]
+            agent.infer(binarize(bev), tp, speed)
+        t0 = time.perf_counter()
+        for i in range(calls):
+            bev, tp, speed = frames[i % len(frames)]
+            agent.infer(binarize(bev), tp, speed)
+        return 1000 * (time.perf_counter() - t0) / calls
+    return infer_ms, network_between

@@ -1,0 +1,49 @@
+"""Options and conventions shared by every subcommand: the one-line usage error, seeds, the
+agent and the backend options."""
+from __future__ import annotations
+
+import argparse
+
+from harness.common.errors import BadInput
+from harness.loop.agent import DEFAULT_AGENT
+from harness.runs.evaluate import Backend
+
+EXIT_BAD_INPUT = 2
+
+
+class Parser(argparse.ArgumentParser):
+    """argparse that reports a usage error as one line (and exit code 2)."""
+
+    def error(self, message: str) -> None:  # noqa: D401 - argparse API
+        raise BadInput(f"{message} (see '{self.prog} --help')")
+
+
+def seed_arg(text: str) -> int:
+    """argparse type of every --seed: an integer >= 0 (numpy's SeedSequence takes no negative)."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"invalid int value: {text!r}") from None
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"invalid seed {value}: must be >= 0")
+    return value
+
+
+def add_agent_options(p: argparse.ArgumentParser) -> None:
+    """--agent and --agent-config."""
+    p.add_argument("--agent", default=DEFAULT_AGENT,
+                   help=f"agent name, module:Class, or a student checkpoint (.pt) (default {DEFAULT_AGENT})")
+    p.add_argument("--agent-config", help="file passed to the agent's setup()")
+
+
+def add_backend_options(p: argparse.ArgumentParser) -> None:
+    """--backend and --address (the --workers option is each command's own)."""
+    p.add_argument("--backend", default="local", choices=("local", "ray"),
+                   help="local worker processes, or Ray tasks (needs the 'ray' extra; see docs/cluster.md)")
+    p.add_argument("--address", help="Ray cluster to join (host:port of its head, ray://host:port, or auto); "
+                   "default: a local Ray on --workers CPUs")
+
+
+def backend_of(args: argparse.Namespace) -> Backend:
+    """The Backend the parsed options name."""
+    return Backend(getattr(args, "workers", None), args.backend, args.address)

@@ -1,4 +1,4 @@
-"""Shared fixtures: the committed route sets, parsed once per session."""
+"""Shared fixtures: the committed route sets, parsed once per test run."""
 from __future__ import annotations
 
 import pytest

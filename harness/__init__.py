@@ -1,6 +1,7 @@
 """The closed loop (SPEC §3-§5, §9-§10): one subpackage per concern, imported in this order.
 
-    common/    atomic file writes and the bad-input error, shared by every stage
+    common/    atomic file writes, the bad-input error, the run-folder lock, the user's
+               stops (Ctrl-C, SIGTERM) told from an agent's exceptions; shared by every stage
     sim/       the simulated world: libsumo, hazards, background traffic, contacts, the
                route's global plan (the only code that calls libsumo)
     sensors/   the BEV raster

@@ -122,8 +122,15 @@ def build_cache(folder: Path, cache_dir: Path, views: int, workers: int = 2, dig
     arrays["stems"] = np.array([f.stem for f in files])
     out.parent.mkdir(parents=True, exist_ok=True)
     tmp = out.with_name(out.name + f".tmp{mp.current_process().pid}.npz")
-    np.savez(tmp, **arrays)
-    tmp.replace(out)
+    try:
+        np.savez(tmp, **arrays)
+        tmp.replace(out)
+    except BaseException:  # a full disk, a stop: no temporary file left
+        try:
+            tmp.unlink()
+        except OSError:
+            pass
+        raise
     return out
 
 

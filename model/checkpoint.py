@@ -24,6 +24,7 @@ from harness.common.errors import BadInput
 from model.network import NetConfig, Student
 
 FORMAT = "sumo-scimm-student/1"
+ZIP_MAGIC, PICKLE_PROTO = b"PK\x03\x04", b"\x80"  # how torch files start: zip (torch.save), legacy pickle
 WEIGHTS_NAME = "student.pt"  # file name inside a training's --out folder
 
 
@@ -63,12 +64,20 @@ def load_checkpoint(path: str | Path) -> tuple[Student, dict]:
     if not p.is_file():
         raise BadInput(f"model checkpoint {p} not found (train one with 'sumo-scimm train --data DIR --out DIR')")
     try:
+        with open(p, "rb") as f:
+            head = f.read(4)
+    except OSError as exc:
+        raise BadInput(f"model checkpoint {p} cannot be read ({exc.strerror or exc})") from None
+    if head != ZIP_MAGIC and head[:1] != PICKLE_PROTO:
+        raise BadInput(f"model checkpoint {p} is not a torch file (it starts with {head!r}); use a file written "
+                       "by 'sumo-scimm train'")
+    try:
         blob = torch.load(p, map_location="cpu", weights_only=True)
     except pickle.UnpicklingError as exc:
         first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
         raise BadInput(f"model checkpoint {p} refused: it holds Python objects that weights_only loading does "
                        f"not allow and could run code ({first[:120]}); use a file written by 'sumo-scimm train'") from None
-    except (RuntimeError, EOFError, OSError, ValueError, zipfile.BadZipFile) as exc:
+    except (RuntimeError, EOFError, OSError, ValueError, KeyError, zipfile.BadZipFile) as exc:
         raise BadInput(f"model checkpoint {p} is corrupt or not a torch file ({type(exc).__name__}); "
                        f"retrain with 'sumo-scimm train'") from None
     if not isinstance(blob, dict) or blob.get("format") != FORMAT:

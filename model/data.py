@@ -38,7 +38,7 @@ from harness.common.errors import BadInput
 from model import cache as bevcache
 from scimm.teacher import episode_files
 
-TEACHER_METHODS = ("fixed", "scimm")
+TEACHER_METHODS = ("fixed", "scimm", "smoother")
 
 
 def move(points: np.ndarray, shift: np.ndarray, rot: np.ndarray) -> np.ndarray:

@@ -1,7 +1,7 @@
 """``sumo-scimm reproduce``: the paper's whole experiment on a CPU, one stage after another.
 
-    collect train + val (expert) -> teachers (fixed, scimm) -> for each seed: train
-    baseline / fixed / scimm students -> evaluate each on town12_short -> Table 2,
+    collect train + val (expert) -> teachers (fixed, scimm, smoother) -> for each seed: train
+    baseline / fixed / scimm / smoother students -> evaluate each on town12_short -> Table 2,
     Tables 3-4 (mean over seeds, 95 % intervals, change against the baseline), Fig. 4, Fig. 5
 
 Every stage is the function behind the subcommand a user would run by hand (its command
@@ -25,8 +25,9 @@ from harness.common.atomic import write_atomic
 from harness.common.errors import BadInput
 from harness.runs.evaluate import Backend
 
-# (arm, teacher of `sumo-scimm train`): the paper's three students; the first is the baseline
-ARMS = (("baseline", "none"), ("fixed", "fixed"), ("scimm", "scimm"))
+# (arm, teacher of `sumo-scimm train`): the paper's three students, the first the baseline,
+# then the offline IMM smoother's (a teacher the paper does not have)
+ARMS = (("baseline", "none"), ("fixed", "fixed"), ("scimm", "scimm"), ("smoother", "smoother"))
 EVAL_SET = "town12_short"
 log = logging.getLogger(__name__)
 
@@ -64,7 +65,7 @@ def reproduce(out: Path, seeds: int, repetitions: int, epochs: int | None, backe
     from harness.scoring.report import write_arm_report
     from model.train import TrainConfig, train
     from scimm.stage import dataset_episodes, make_teachers, write_tables
-    from scimm.teacher import is_complete
+    from scimm.teacher import METHODS as TEACHERS, is_complete
     out.mkdir(parents=True, exist_ok=True)
     st = Stages(out)
     train_dir, val_dir = out / "data" / "train", out / "data" / "val"
@@ -75,7 +76,7 @@ def reproduce(out: Path, seeds: int, repetitions: int, epochs: int | None, backe
     st.run("collect val", f"collect --routes {val_set} --out {val_dir} {w} --resume",
            lambda: collect(val_set, val_dir, resume=True, backend=backend))
     _, episodes = dataset_episodes(train_dir)
-    for method in ("fixed", "scimm"):
+    for method in TEACHERS:
         if not is_complete(train_dir, method):
             st.run(f"teacher {method}", f"teacher --data {train_dir} --method {method}",
                    lambda method=method: make_teachers(train_dir, episodes, (method,)))

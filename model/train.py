@@ -26,7 +26,7 @@ stopped and never starts again (in closed loop, a student trained on every frame
 - every starting-off frame (standing, moved >= 0.5 m 2.5 s later) DEPART_REPEAT times;
 - every other frame once.
 
-Teacher arms (``--teacher fixed|scimm``) add the teacher terms of eq. 11 and the mode term
+Teacher arms (``--teacher fixed|scimm|smoother``) add the teacher terms of eq. 11 and the mode term
 of eq. 13 with model.loss.LossWeights; ``--teacher none`` is the baseline (l_scimm = l_mode
 = 0) and never opens teacher files. The validation loss is L_origin (expert path + speed
 waypoints, no augmentation) on the validation dataset, the same for every arm.
@@ -72,7 +72,7 @@ THREADS = 2  # torch threads (fixed, so results do not depend on the machine's c
 class TrainConfig:
     data: Path
     out: Path
-    teacher: str = "none"  # none | fixed | scimm
+    teacher: str = "none"  # none | fixed | scimm | smoother
     val: Path | None = None
     seed: int = 0
     epochs: int = EPOCHS
@@ -84,7 +84,7 @@ class TrainConfig:
 
     def __post_init__(self) -> None:
         if self.teacher not in ("none", *TEACHER_METHODS):
-            raise BadInput(f"--teacher must be none, fixed or scimm, got {self.teacher!r}")
+            raise BadInput(f"--teacher must be none, {', '.join(TEACHER_METHODS)}, got {self.teacher!r}")
         if self.epochs < 1:
             raise BadInput(f"--epochs must be >= 1, got {self.epochs}")
         if self.seed < 0:

@@ -15,7 +15,7 @@ from pathlib import Path
 from sumo_nets import UnknownTown, check_town, load_net
 from scenarios.geometry import RouteError, RoutePath, trace
 from scenarios.hazards import check_params
-from scenarios.routefile import Route, RouteFileError, load_tree, parse_route
+from scenarios.routefile import Route, RouteFileError, load_tree, parse_route, set_bounds, short
 
 ON_ROUTE = 3.0  # a keypoint or trigger point is "on the route" within this distance [m]
 
@@ -33,12 +33,12 @@ def check_route(route: Route, bounds: tuple[float, float] = (0.0, math.inf)) -> 
         raise RouteFileError(rid, f"disconnected or off-net route: {exc}") from None
     lo, hi = bounds
     if not lo <= path.length <= hi:
-        raise RouteFileError(rid, f"length {path.length:.1f} m is outside the set's bounds [{lo:g}, {hi:g}] m")
+        raise RouteFileError(rid, f"length {short(path.length)} m is outside the set's bounds [{lo:g}, {hi:g}] m")
     s_prev = -1.0
     for k, (x, y, _) in enumerate(route.waypoints):
         s, d = path.project(x, y, max(s_prev, 0.0))
         if d > ON_ROUTE:
-            raise RouteFileError(rid, f"waypoint {k} ({x:.1f}, {y:.1f}) is {d:.1f} m off the route's "
+            raise RouteFileError(rid, f"waypoint {k} ({short(x)}, {short(y)}) is {short(d)} m off the route's "
                                       f"edges: waypoints and edges disagree")
         s_prev = s
     passed = {p.junction for p in path.passages}
@@ -49,7 +49,7 @@ def check_route(route: Route, bounds: tuple[float, float] = (0.0, math.inf)) -> 
             raise RouteFileError(rid, f"hazard {h.name!r}: {reason}")
         s, d = path.project(h.trigger[0], h.trigger[1])
         if d > ON_ROUTE:
-            raise RouteFileError(rid, f"hazard {h.name!r}: trigger point is {d:.1f} m off the route")
+            raise RouteFileError(rid, f"hazard {h.name!r}: trigger point is {short(d)} m off the route")
         if s + float(h.params["distance"]) > path.length + 1.0:
             raise RouteFileError(rid, f"hazard {h.name!r}: site lies beyond the route end")
         if "junction" in h.params and h.params["junction"] not in passed:
@@ -70,9 +70,9 @@ def check_file(path: Path) -> tuple[int, list[RouteFileError]]:
     except RouteFileError as exc:
         return 0, [exc]
     try:
-        bounds = (float(root.get("min_length", 0.0)), float(root.get("max_length", math.inf)))
-    except ValueError:
-        return 0, [RouteFileError(None, f"{path}: min_length/max_length are not numbers")]
+        bounds = set_bounds(root, path)
+    except RouteFileError as exc:
+        return 0, [exc]
     elements = root.findall("route")
     if not elements:
         return 0, [RouteFileError(None, f"{path}: no <route> elements")]

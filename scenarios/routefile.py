@@ -20,10 +20,17 @@ Layout (one file = one route set; the Leaderboard's parser reads it, ignoring ``
 The ``min_length``/``max_length`` attributes are the set's length bounds [m] (checked by
 ``routes check``); ``length`` is the route length along the lanes, for reference.
 XML is parsed with defusedxml: DTDs and entities are refused (no entity expansion).
+
+Every number is checked as it is read: finite, and in its range (coordinates within
+COORD_LIMIT of the origin, positions along lanes and lengths >= 0 and > 0, yaw within
++-360 deg); a problem is a RouteFileError naming the element, the attribute and the
+range, with over-long values cut (``clip_numbers``).
 """
 from __future__ import annotations
 
 import math
+import os
+import re
 from dataclasses import dataclass, field
 from pathlib import Path
 from xml.etree.ElementTree import Element, ParseError, SubElement, indent, tostring
@@ -32,12 +39,32 @@ import defusedxml.ElementTree as SafeET
 from defusedxml import DefusedXmlException
 
 
+COORD_LIMIT = 1e7  # |x|, |y|, |z| and positions along a lane [m]: 10,000 km, beyond any net
+YAW_LIMIT = 360.0  # |yaw| of a trigger point [deg]
+_LONG_NUMBER = re.compile(r"\d{20,}")
+_VALUE_WIDTH = 16  # characters of an attribute value quoted in a message
+
+
+def clip_numbers(text: str) -> str:
+    """``text`` with every run of 20 or more digits cut to its first 8 (a message stays one
+    readable line whatever number a file or an option held)."""
+    return _LONG_NUMBER.sub(lambda m: f"{m[0][:8]}...({len(m[0])} digits)", text)
+
+
+def short(v: float) -> str:
+    """A number of metres for a message: one decimal, or 3 significant digits when huge."""
+    return f"{v:.1f}" if abs(v) < 1e9 else f"{v:.3g}"
+
+
 class RouteFileError(ValueError):
     """A problem with a route file; ``route_id`` is None for file-level problems."""
 
     def __init__(self, route_id: str | None, reason: str):
-        self.route_id, self.reason = route_id, reason
-        super().__init__(f"route {route_id}: {reason}" if route_id is not None else reason)
+        reason = clip_numbers(reason)
+        self.route_id = None if route_id is None else clip_numbers(
+            route_id if len(route_id) <= 40 else f"{route_id[:40]}...")
+        self.reason = reason
+        super().__init__(f"route {self.route_id}: {reason}" if route_id is not None else reason)
 
 
 @dataclass(frozen=True)
@@ -64,17 +91,33 @@ class Route:
     length: float = math.nan  # [m] along the lanes, as written by the builder
 
 
-def _num(el: Element, key: str, rid: str | None) -> float:
-    raw = el.get(key)
-    if raw is None:
-        raise RouteFileError(rid, f"<{el.tag}> has no {key!r} attribute")
+def number(raw: str, what: str, lo: float, hi: float, open_lo: bool = False) -> float:
+    """``raw`` as a finite number in [lo, hi] (``open_lo``: in (lo, hi]); otherwise
+    ValueError whose text names ``what`` (e.g. "<sumo> length"), the value and the range."""
+    shown = raw if len(raw) <= _VALUE_WIDTH else f"{raw[:_VALUE_WIDTH]}... ({len(raw)} characters)"
     try:
         v = float(raw)
     except ValueError:
-        raise RouteFileError(rid, f"<{el.tag}> {key}={raw!r} is not a number") from None
+        raise ValueError(f"{what}={shown!r} is not a number") from None
     if not math.isfinite(v):
-        raise RouteFileError(rid, f"<{el.tag}> {key}={raw!r} is not finite")
+        raise ValueError(f"{what}={shown!r} is not finite")
+    if not (lo < v if open_lo else lo <= v) or v > hi:
+        raise ValueError(f"{what}={shown!r} is outside {'(' if open_lo else '['}{lo:g}, {hi:g}]")
     return v
+
+
+def _num(el: Element, key: str, rid: str | None, lo: float = -COORD_LIMIT, hi: float = COORD_LIMIT,
+         default: float | None = None, open_lo: bool = False) -> float:
+    """Attribute ``key`` of ``el`` as a number in [lo, hi] (``default`` if absent, when given)."""
+    raw = el.get(key)
+    if raw is None:
+        if default is not None:
+            return default
+        raise RouteFileError(rid, f"<{el.tag}> has no {key!r} attribute")
+    try:
+        return number(raw, f"<{el.tag}> {key}", lo, hi, open_lo)
+    except ValueError as exc:
+        raise RouteFileError(rid, str(exc)) from None
 
 
 def parse_route(el: Element) -> Route:
@@ -89,7 +132,7 @@ def parse_route(el: Element) -> Route:
     if wps is None or len(wps.findall("position")) < 2:
         raise RouteFileError(rid, "needs <waypoints> with at least two <position>")
     waypoints = tuple((_num(p, "x", rid), _num(p, "y", rid), _num(p, "z", rid) if p.get("z") else 0.0)
-                      for p in wps.findall("position"))
+                      for p in wps.findall("position"))  # an empty z counts as 0, as before
     hazards = []
     for sc in (el.find("scenarios") if el.find("scenarios") is not None else []):
         if sc.tag != "scenario":
@@ -97,7 +140,8 @@ def parse_route(el: Element) -> Route:
         tp = sc.find("trigger_point")
         if tp is None:
             raise RouteFileError(rid, f"scenario {sc.get('name')!r} has no <trigger_point>")
-        trig = (_num(tp, "x", rid), _num(tp, "y", rid), float(tp.get("z", 0.0)), _num(tp, "yaw", rid))
+        trig = (_num(tp, "x", rid), _num(tp, "y", rid), _num(tp, "z", rid, default=0.0),
+                _num(tp, "yaw", rid, -YAW_LIMIT, YAW_LIMIT))
         params = {}
         for child in sc:
             if child.tag == "trigger_point":
@@ -109,9 +153,22 @@ def parse_route(el: Element) -> Route:
     sumo = el.find("sumo")
     if sumo is None or not (sumo.get("edges") or "").split():
         raise RouteFileError(rid, "no <sumo edges=...> edge list")
-    length = float(sumo.get("length")) if sumo.get("length") else math.nan
+    length = _num(sumo, "length", rid, 0.0, COORD_LIMIT, open_lo=True) if sumo.get("length") else math.nan
     return Route(rid, town, waypoints, tuple(hazards), tuple(sumo.get("edges").split()),
-                 _num(sumo, "depart_pos", rid), _num(sumo, "arrival_pos", rid), length)
+                 _num(sumo, "depart_pos", rid, 0.0), _num(sumo, "arrival_pos", rid, 0.0), length)
+
+
+def set_bounds(root: Element, path: Path) -> tuple[float, float]:
+    """The set's length bounds [m] (``min_length``, ``max_length`` on ``<routes>``; absent:
+    0 and infinity); RouteFileError unless finite, >= 0 and min <= max."""
+    try:
+        lo = number(root.get("min_length"), "min_length", 0.0, COORD_LIMIT) if root.get("min_length") else 0.0
+        hi = number(root.get("max_length"), "max_length", 0.0, COORD_LIMIT) if root.get("max_length") else math.inf
+    except ValueError as exc:
+        raise RouteFileError(None, f"{path}: <routes> {exc}") from None
+    if lo > hi:
+        raise RouteFileError(None, f"{path}: <routes> min_length {lo:g} is above max_length {hi:g}")
+    return lo, hi
 
 
 def load_tree(path: Path) -> Element:
@@ -163,6 +220,13 @@ def write_routes(path: Path, meta: dict[str, str], routes: list[Route]) -> Path:
     indent(root, "  ")
     path = Path(path)
     tmp = path.with_suffix(path.suffix + ".tmp")
-    tmp.write_bytes(b'<?xml version="1.0" encoding="UTF-8"?>\n' + tostring(root, encoding="utf-8") + b"\n")
-    tmp.replace(path)
+    try:
+        tmp.write_bytes(b'<?xml version="1.0" encoding="UTF-8"?>\n' + tostring(root, encoding="utf-8") + b"\n")
+        tmp.replace(path)
+    except BaseException:  # a full disk, a stop: no temporary file left
+        try:
+            os.unlink(tmp)
+        except OSError:
+            pass
+        raise
     return path

@@ -4,8 +4,14 @@ filterpy is installed; it is a test-only dependency), and their agreement.
 
 The workload is what the teacher feeds the filter (scimm.teacher.run_imm): every episode of a
 dataset at once, B = 300 sequences of T = 400 frames (datasets hold ~200-400 episodes of
-~300-450 frames at 4 Hz), with per-frame Pi_t and Q_t from scimm.scene.conditioned and a
-non-symmetric Pi0. "One core": BLAS/OpenMP thread counts are set to 1, the process is pinned
+~300-450 frames at 4 Hz), with per-frame Pi_t and Q_t from scimm.scene.conditioned, a
+non-symmetric Pi0, and the per-frame ego-motion carry C_t, u_t of scimm.ego (arcs d of
+0-0.25 and turns of up to 0.2 rad a frame: the random states here are of order 1, where the
+teacher's curvatures are of order 0.01 /m, so its d of 1-4 m moves the heading by as
+little; with d up to 4 the random system's predictions run away from its measurements,
+filterpy's likelihoods underflow, and the agreement check means nothing). filterpy runs
+the same carried model as a KalmanFilter per mode with F = F_j C_t, B = F_j and control u_t
+(scimm.imm, step 3b). "One core": BLAS/OpenMP thread counts are set to 1, the process is pinned
 to one CPU while timing (Linux), and frames/s divide by the process CPU time, which other
 programs sharing the machine do not inflate; the wall-clock figure is printed beside it.
 
@@ -36,6 +42,7 @@ from typing import Iterator  # noqa: E402
 
 import numpy as np  # noqa: E402
 
+from scimm.ego import carry_inputs  # noqa: E402
 from scimm.imm import imm_filter  # noqa: E402
 from scimm.scene import conditioned  # noqa: E402
 
@@ -67,13 +74,13 @@ def _one_cpu() -> Iterator[None]:
         os.sched_setaffinity(0, before)
 
 
-def _filterpy_run(IMMEstimator, KalmanFilter, z, F, Q, R, x0, P0, Pi, mu0):
-    """filterpy on one sequence with per-frame Pi (T,M,M) and Q (T,M,n,n): x (T,n), mu (T,M).
-    filterpy mixes with the M it held at the previous update, so Pi_t is set and the mixing
-    probabilities recomputed before each predict."""
+def _filterpy_run(IMMEstimator, KalmanFilter, z, F, Q, R, x0, P0, Pi, mu0, C, u):
+    """filterpy on one sequence with per-frame Pi (T,M,M), Q (T,M,n,n) and carry C (T,n,n),
+    u (T,n): x (T,n), mu (T,M). filterpy mixes with the M it held at the previous update, so
+    Pi_t is set and the mixing probabilities recomputed before each predict."""
     filters = []
     for j in range(len(F)):
-        kf = KalmanFilter(dim_x=N, dim_z=N)
+        kf = KalmanFilter(dim_x=N, dim_z=N, dim_u=N)
         kf.F, kf.R, kf.H, kf.x, kf.P = F[j], R, np.eye(N), x0[j].copy(), P0[j].copy()
         filters.append(kf)
     imm = IMMEstimator(filters, mu0.copy(), Pi[0])
@@ -82,8 +89,8 @@ def _filterpy_run(IMMEstimator, KalmanFilter, z, F, Q, R, x0, P0, Pi, mu0):
         imm.M = Pi[t]
         imm._compute_mixing_probabilities()
         for j, kf in enumerate(filters):
-            kf.Q = Q[t, j]
-        imm.predict()
+            kf.Q, kf.F, kf.B = Q[t, j], F[j] @ C[t], F[j]
+        imm.predict(u[t])
         imm.update(z[t])
         xs[t], mus[t] = np.ravel(imm.x), np.ravel(imm.mu)
     return xs, mus
@@ -107,11 +114,12 @@ def run_imm_bench(batch: int = 300, frames: int = 400, filterpy_sequences: int =
     Pi, Q = conditioned(Pi0, Q0, A, gamma)
     z = np.cumsum(rng.normal(size=(batch, frames, N)), axis=1)
     x0 = np.broadcast_to(z[:, :1], (batch, M, N)).copy()
+    C, u = carry_inputs(rng.uniform(0.0, 0.25, (batch, frames)), rng.uniform(-0.2, 0.2, (batch, frames)))
     out = {"imm_batch": batch, "imm_frames": frames, "imm_target": 100_000}
     with _one_cpu():
-        imm_filter(z[:8, :20], F, Q[:8, :20], R, x0[:8], P0, Pi[:8, :20], mu0)  # warm-up
+        imm_filter(z[:8, :20], F, Q[:8, :20], R, x0[:8], P0, Pi[:8, :20], mu0, C[:8, :20], u[:8, :20])  # warm-up
         wall, cpu = time.perf_counter(), time.process_time()
-        res = imm_filter(z, F, Q, R, x0, P0, Pi, mu0)
+        res = imm_filter(z, F, Q, R, x0, P0, Pi, mu0, C, u)
         wall, cpu = time.perf_counter() - wall, time.process_time() - cpu
         out.update(imm_frames_per_s=round(batch * frames / cpu), imm_frames_per_s_wall=round(batch * frames / wall))
         try:
@@ -122,7 +130,7 @@ def run_imm_bench(batch: int = 300, frames: int = 400, filterpy_sequences: int =
         dx = dmu = 0.0
         cpu = time.process_time()
         for b in range(filterpy_sequences):
-            fx, fmu = _filterpy_run(IMMEstimator, KalmanFilter, z[b], F, Q[b], R, x0[b], P0, Pi[b], mu0)
+            fx, fmu = _filterpy_run(IMMEstimator, KalmanFilter, z[b], F, Q[b], R, x0[b], P0, Pi[b], mu0, C[b], u[b])
             dx, dmu = max(dx, float(np.max(np.abs(fx - res.x[b])))), max(dmu, float(np.max(np.abs(fmu - res.mu[b]))))
         theirs = filterpy_sequences * frames / (time.process_time() - cpu)
     out.update(filterpy_frames_per_s=round(theirs), imm_over_filterpy=round(out["imm_frames_per_s"] / theirs, 1),
@@ -145,7 +153,7 @@ def _run_in_fresh_process(batch: int, frames: int, filterpy_sequences: int, seed
 
 def format_imm_bench(r: dict) -> str:
     lines = [f"teacher (5-mode, 5-state IMM, B = {r['imm_batch']} sequences x T = {r['imm_frames']} frames, "
-             "per-frame Pi and Q; one core: OMP/OPENBLAS/MKL_NUM_THREADS = 1, pinned to one CPU, "
+             "per-frame Pi, Q and ego-motion carry; one core: OMP/OPENBLAS/MKL_NUM_THREADS = 1, pinned to one CPU, "
              "frames per CPU-second):",
              f"  IMM                   {r['imm_frames_per_s']:10d} frames/s  (target >= {r['imm_target']}; "
              f"wall clock {r['imm_frames_per_s_wall']})"]

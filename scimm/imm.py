@@ -14,6 +14,7 @@ One cycle per frame t, frame 0 included, starting from the given (x0, P0, mu0):
     2. w_ij    = Pi_ij mu^i / cbar_j                     mixing weights (sum_i w_ij = 1)
     3. x0^j    = sum_i w_ij x^i
        P0^j    = sum_i w_ij [P^i + (x^i - x0^j)(x^i - x0^j)^T]   spread about x0^j
+    3b. x0^j  <- C_t x0^j + u_t,   P0^j <- C_t P0^j C_t^T           known input (optional)
     4. xbar^j  = F_j x0^j,   Pbar^j = F_j P0^j F_j^T + Q_j          predict
     5. S_j = Pbar^j + R = C_j C_j^T (Cholesky),  K_j = Pbar^j S_j^-1 = I - R S_j^-1,
        nu_j = z - xbar^j,  x^j = xbar^j + K_j nu_j
@@ -23,6 +24,14 @@ One cycle per frame t, frame 0 included, starting from the given (x0, P0, mu0):
     8. x = sum_j mu^j x^j,  P = sum_j mu^j [P^j + (x^j - x)(x^j - x)^T]   fused output
 
 A frame whose measurement has a NaN skips 5-7 (x^j = xbar^j, P^j = Pbar^j, mu = cbar).
+
+Step 3b is a known input shared by every mode (SPEC §6.2): the state of frame t-1 carried
+into frame t's coordinates by a per-frame matrix C_t and offset u_t (the teacher's ego
+motion, scimm.ego). Mode j's transition is then x_t = F_j C_t x_t-1 + F_j u_t + w, still
+linear: filterpy's KalmanFilter with F = F_j C_t, B = F_j and control u_t is the same
+filter. Carrying the mixed x0^j equals carrying every x^i before mixing, because C_t is the
+same for all modes (the spread terms transform as C_t d d^T C_t^T). Without C, u (or with
+C = I, u = 0) the step is skipped and the filter is the plain IMM.
 
 Speed (``sumo-scimm bench``). Tiny per-sequence 5 x 5 matrix operations are slow in NumPy, long
 vector operations are fast, so every array keeps the batch axis last and each matrix entry is
@@ -52,14 +61,17 @@ _FLOOR = np.finfo(float).min  # the shift of an all -inf slice in _log_normalise
 @dataclass(frozen=True)
 class IMMResult:
     """Posterior of every frame: fused x (B,T,n), P (B,T,n,n), mode probabilities mu (B,T,M),
-    mode-matched means x_modes (B,T,M,n), and the one-step predictive log-likelihood
-    loglik (B,T) = log p(z_t | z_<t) (0 on a frame without measurement)."""
+    mode-matched means x_modes (B,T,M,n), the one-step predictive log-likelihood
+    loglik (B,T) = log p(z_t | z_<t) (0 on a frame without measurement), and the
+    mode-matched covariances P_modes (B,T,M,n,n) when ``imm_filter(..., keep_P_modes=True)``
+    (the smoother's input, scimm.smoother)."""
 
     x: np.ndarray
     P: np.ndarray
     mu: np.ndarray
     x_modes: np.ndarray
     loglik: np.ndarray
+    P_modes: np.ndarray | None = None  # (B,T,M,n,n) mode-matched covariances, if asked for
 
 
 def _log_normalise(a: np.ndarray, axis: int) -> tuple[np.ndarray, np.ndarray]:
@@ -197,6 +209,15 @@ def _update(xbar: np.ndarray, nu: np.ndarray, buf: _Buffers, P: np.ndarray, x: n
     return log_l
 
 
+def _carry(C: np.ndarray, u: np.ndarray, xm: np.ndarray, Pm: np.ndarray, buf: _Buffers) -> np.ndarray:
+    """Step 3b for per-sequence C (n, n, B) and u (n, B): returns C x0^j + u (n, M, B) and
+    overwrites Pm (n, n, M, B) with C P0^j C^T (its symmetry is restored by the predict,
+    which symmetrises F P F^T)."""
+    np.einsum("acb,cdmb->admb", C, Pm, out=buf.outer)  # C P
+    np.einsum("admb,edb->aemb", buf.outer, C, out=Pm)  # (C P) C^T
+    return np.einsum("acb,cmb->amb", C, xm) + u[:, None]
+
+
 def _fuse(mu: np.ndarray, x: np.ndarray, buf: _Buffers) -> np.ndarray:
     """Step 8's mean xf (n, B) from mu (M, B) and x (n, M, B); turns buf.ZD's P^j into
     P^j + d_j d_j^T and stores d_j = x^j - xf, which give the fused P and the next mixing."""
@@ -221,12 +242,17 @@ def _log_pi_batch_last(Pi: np.ndarray, t: int) -> np.ndarray:
 
 
 def imm_filter(z: np.ndarray, F: np.ndarray, Q: np.ndarray, R: np.ndarray, x0: np.ndarray,
-               P0: np.ndarray, Pi: np.ndarray, mu0: np.ndarray) -> IMMResult:
+               P0: np.ndarray, Pi: np.ndarray, mu0: np.ndarray, carry: np.ndarray | None = None,
+               shift: np.ndarray | None = None, keep_P_modes: bool = False) -> IMMResult:
     """Run the IMM over B sequences of T frames.
 
     z (B,T,n) measurements (NaN = missing); F (M,n,n); Q (M,n,n) or per frame (B,T,M,n,n);
     R (n,n); x0 (B,M,n) initial mode means; P0 (M,n,n); Pi (M,M) row-stochastic (row =
-    previous mode) or per frame (B,T,M,M); mu0 (M,). float64 throughout.
+    previous mode) or per frame (B,T,M,M); mu0 (M,). Optional known input of step 3b:
+    carry C (B,T,n,n) and shift u (B,T,n), both or neither; C[:, t], u[:, t] take frame
+    t-1's state into frame t (at t = 0 they act on x0). keep_P_modes: also return the
+    mode-matched covariances. float64 throughout. (One function for the whole frame loop,
+    longer than most: it holds the reused buffers and the order of steps 1-8 in one view.)
     """
     z = np.asarray(z, dtype=float)
     B, T, n = z.shape
@@ -234,6 +260,7 @@ def imm_filter(z: np.ndarray, F: np.ndarray, Q: np.ndarray, R: np.ndarray, x0: n
     M = F.shape[0]
     Q, Pi = np.asarray(Q, dtype=float), np.asarray(Pi, dtype=float)
     _check(z, F, Q, R, x0, P0, Pi, mu0)
+    carry_T, shift_T = _known_input(carry, shift, B, T, n)
     with np.errstate(divide="ignore"):  # structural zeros of Pi are -inf logits, on purpose
         log_mu = np.repeat(np.log(np.asarray(mu0, dtype=float))[:, None], B, axis=1)  # (M, B)
         log_pi_fixed = np.log(Pi).T[:, :, None] if Pi.ndim == 2 else None  # [j, i] = log Pi_ij
@@ -248,6 +275,7 @@ def imm_filter(z: np.ndarray, F: np.ndarray, Q: np.ndarray, R: np.ndarray, x0: n
     x0_t = np.ascontiguousarray(np.transpose(np.asarray(x0, dtype=float), (2, 1, 0)))  # (n, M, B)
     out_x, out_P = np.empty((T, n, B)), np.empty((T, n, n, B))
     out_mu, out_xm, out_ll = np.empty((T, M, B)), np.empty((T, n, M, B)), np.empty((T, B))
+    out_Pm = np.empty((T, n, n, M, B)) if keep_P_modes else None
     xf = _fuse(np.exp(log_mu), x0_t, buf)
     for t in range(T):
         if log_pi_fixed is None and t % _CHUNK == 0:
@@ -255,7 +283,10 @@ def imm_filter(z: np.ndarray, F: np.ndarray, Q: np.ndarray, R: np.ndarray, x0: n
         log_pi_t = log_pi_fixed if log_pi_fixed is not None else log_pi_chunk[t % _CHUNK]
         log_cbar, ym, Pm = _mix(log_mu, log_pi_t, buf)
         Q_t = Q_fixed if Q_fixed is not None else Q[:, t].transpose(2, 3, 1, 0)  # (n, n, M, B) view
-        xbar = _predict(F, F_half, xf[:, None] + ym, Pm, Q_t, buf)
+        xm = xf[:, None] + ym  # x0^j
+        if carry_T is not None:
+            xm = _carry(carry_T[t], shift_T[t], xm, Pm, buf)
+        xbar = _predict(F, F_half, xm, Pm, Q_t, buf)
         seen, x = seen_all[t], out_xm[t]  # x^j is written in place into the output
         nu = np.subtract((zT[t] if all_seen[t] else np.where(seen, zT[t], 0.0))[:, None], xbar)
         log_l = _update(xbar.reshape(n, -1), nu.reshape(n, -1), buf,
@@ -270,6 +301,8 @@ def imm_filter(z: np.ndarray, F: np.ndarray, Q: np.ndarray, R: np.ndarray, x0: n
             np.copyto(P_modes, buf.Pbar, where=~seen)
             _mirror_lower(P_modes.reshape(n, n, -1), buf.mirror)  # Pbar is symmetric if Q is
         out_mu[t] = mu
+        if out_Pm is not None:
+            out_Pm[t] = P_modes
         out_x[t] = xf = _fuse(mu, x, buf)
         # every P^j + d_j d_j^T is exactly symmetric, so the fused P is too
         np.einsum("mb,emb->eb", mu, buf.ZD[:n * n], out=out_P[t].reshape(n * n, B))
@@ -278,7 +311,21 @@ def imm_filter(z: np.ndarray, F: np.ndarray, Q: np.ndarray, R: np.ndarray, x0: n
                      np.ascontiguousarray(out_P.transpose(3, 0, 1, 2)),
                      np.ascontiguousarray(out_mu.transpose(2, 0, 1)),
                      np.ascontiguousarray(out_xm.transpose(3, 0, 2, 1)),
-                     np.ascontiguousarray(out_ll.T))
+                     np.ascontiguousarray(out_ll.T),
+                     None if out_Pm is None else np.ascontiguousarray(out_Pm.transpose(4, 0, 3, 1, 2)))
+
+
+def _known_input(carry, shift, B: int, T: int, n: int) -> tuple[np.ndarray | None, np.ndarray | None]:
+    """Step 3b's inputs entry-major, (carry (T, n, n, B), shift (T, n, B)), or (None, None)."""
+    if (carry is None) != (shift is None):
+        raise ValueError("carry and shift go together: give both or neither")
+    if carry is None:
+        return None, None
+    if np.shape(carry) != (B, T, n, n) or np.shape(shift) != (B, T, n):
+        raise ValueError(f"carry must be (B, T, n, n) = ({B}, {T}, {n}, {n}) and shift (B, T, n), "
+                         f"got {np.shape(carry)} and {np.shape(shift)}")
+    return (np.ascontiguousarray(np.transpose(np.asarray(carry, dtype=float), (1, 2, 3, 0))),
+            np.ascontiguousarray(np.transpose(np.asarray(shift, dtype=float), (1, 2, 0))))
 
 
 def _check(z, F, Q, R, x0, P0, Pi, mu0) -> None:

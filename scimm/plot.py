@@ -52,7 +52,8 @@ def plot_posterior(episode_file: Path, out: Path, method: str = "scimm", cfg: IM
     ax.set_ylim(0, 1.08)
     ax.set_xlim(t[0], t[-1])
     ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.14), ncol=5, fontsize=8)
-    fig.suptitle(f"{'SC-IMM' if method == 'scimm' else 'Fixed-IMM'} mode posterior, episode {Path(episode_file).stem}")
+    from scimm.table2 import ROW_NAMES
+    fig.suptitle(f"{ROW_NAMES[method]} mode posterior, episode {Path(episode_file).stem}")
     fig.tight_layout()
     out = Path(out)
     write_atomic(out, lambda tmp: fig.savefig(tmp, dpi=110, format="png"))

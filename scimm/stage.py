@@ -5,19 +5,25 @@ Table 2 files out (SPEC §6). ``sumo-scimm teacher`` and ``sumo-scimm reproduce`
     DIR/teacher/table2.csv         paper Table 2, groups = dominant SC-IMM mode
     DIR/teacher/mode_meaning.csv   frames of each labelled situation whose dominant mode means it
     DIR/teacher/fit_residuals.csv  fit residual of the observation per dominant mode (SPEC §6.1)
+    DIR/teacher/lag.csv            alignment offset of v(0) and c0 per mode and teacher (scimm.lag)
+    DIR/teacher/standstill.csv     teacher speed where the expert stands; mode switches per minute
 """
 from __future__ import annotations
 
 import logging
 from pathlib import Path
 
+import numpy as np
 import pandas as pd
 from tqdm import tqdm
 
 from harness.common.atomic import write_atomic
 from harness.common.errors import BadInput
+from scimm import pathspeed
 from scimm import teacher as tch
+from scimm.lag import lag_tables
 from scimm.modes import IMMConfig
+from scimm.table2 import fit_residuals, mode_meaning, situations, table2
 
 log = logging.getLogger(__name__)
 
@@ -45,11 +51,32 @@ def make_teachers(folder: Path, files: list[Path], methods: tuple[str, ...]) -> 
     return written
 
 
-def write_tables(folder: Path, files: list[Path]) -> tuple[pd.DataFrame, pd.DataFrame, pd.DataFrame]:
-    """Table 2, the mode-meaning check and the fit residuals of a dataset whose fixed and
-    scimm teachers are complete, written under ``folder/teacher``; returns the three tables."""
-    from scimm.table2 import evaluate
-    table, meaning, residuals = evaluate(folder, files)
-    for name, df in (("table2", table), ("mode_meaning", meaning), ("fit_residuals", residuals)):
+def write_tables(folder: Path, files: list[Path]) -> dict[str, pd.DataFrame]:
+    """Table 2, the mode-meaning check, the fit residuals and the lag figures of a dataset
+    whose teachers (``teacher.METHODS``) are complete, each written to
+    ``folder/teacher/<name>.csv``; returns them by name (scimm.table2.evaluate)."""
+    tables = evaluate(folder, files, tch.METHODS)
+    for name, df in tables.items():
         write_atomic(folder / "teacher" / f"{name}.csv", lambda tmp, df=df: df.to_csv(tmp, index=False))
-    return table, meaning, residuals
+    return tables
+
+
+def evaluate(data: Path, files: list[Path], methods: tuple[str, ...] = tch.METHODS) -> dict[str, pd.DataFrame]:
+    """{"table2", "mode_meaning", "fit_residuals", "lag", "standstill"}: Table 2, the
+    mode-meaning table, the fit residuals per mode (scimm.table2) and the lag figures
+    (scimm.lag) of the episode files against their written teachers
+    ``data/teacher/<method>/`` (scimm.teacher file contract; ``methods`` must include scimm,
+    whose posterior groups the frames); each file is read once."""
+    episodes, sits, fits = [], [], []
+    for f in files:
+        with np.load(f, allow_pickle=False) as a:
+            ep = {"raw": {"path": a["path"], "speed": pathspeed.label_speeds(a["speed_wps"])},
+                  "pose": np.stack([a["x"], a["y"], a["yaw"]], axis=-1), "v": a["v"]}
+            ep.update({m: tch.load_teacher(data, m, f.stem) for m in methods})
+            sits.append(situations(a))
+            fits.append({"path": a["path"], "speed_wps": a["speed_wps"], "mu": ep["scimm"]["mu"]})
+        episodes.append(ep)
+    mus = {m: [ep[m]["mu"] for ep in episodes] for m in methods}
+    align, still = lag_tables(episodes, methods)
+    return {"table2": table2(episodes, ("raw", *methods)), "mode_meaning": mode_meaning(sits, mus),
+            "fit_residuals": fit_residuals(fits), "lag": align, "standstill": still}

@@ -28,7 +28,6 @@ row's labels are from the raw expert's at the same frame (``*_from_raw``).
 from __future__ import annotations
 
 from collections.abc import Sequence
-from pathlib import Path
 
 import numpy as np
 import pandas as pd
@@ -41,8 +40,8 @@ METRICS = ("speed_delta", "speed_jerk", "lat_delta", "heading_delta", "lat_jerk"
 DISPLAY = {"speed_delta": "Speed delta [m/s]", "speed_jerk": "Speed jerk [m/s^3]", "lat_delta": "Lat delta [m]",
            "heading_delta": "Heading delta [rad]", "lat_jerk": "Lat jerk [m/s^3]"}
 GROUPS = ("Cruise", "Turn", "Deceleration", "Avoidance/Recovery")
-ROWS = ("raw", "fixed", "scimm")
-ROW_NAMES = {"raw": "Original Raw Expert", "fixed": "Fixed-IMM", "scimm": "SC-IMM"}
+ROWS = ("raw", "fixed", "scimm", "smoother")
+ROW_NAMES = {"raw": "Original Raw Expert", "fixed": "Fixed-IMM", "scimm": "SC-IMM", "smoother": "IMM smoother"}
 # situation of harness.expert.dataset -> the modes that mean it (the mode-meaning check)
 MEANING = {"junction_turn": (TURN,), "stopping": (DECEL,), "bypass": (AVOID, RECOVER)}
 
@@ -277,23 +276,3 @@ def situations(a) -> np.ndarray:
     df = pd.DataFrame({"cue_junction": a["cue_junction"], "command": a["command"],
                        "target_speed": a["target_speed"], "v": a["v"], "cue_changed_route": a["cue_changed_route"]})
     return df.apply(situation, axis=1).to_numpy(dtype=str) if len(df) else np.array([], dtype=str)
-
-
-def evaluate(data: Path, files: Sequence[Path],
-             methods: Sequence[str] = ("fixed", "scimm")) -> tuple[pd.DataFrame, pd.DataFrame, pd.DataFrame]:
-    """(Table 2, mode-meaning table, fit residuals per mode) of the episode files against
-    their written teachers ``data/teacher/<method>/`` (scimm.teacher file contract); each
-    file is read once."""
-    from scimm.teacher import load_teacher
-    episodes, sits, fits = [], [], []
-    for f in files:
-        with np.load(f, allow_pickle=False) as a:
-            ep = {"raw": {"path": a["path"], "speed": pathspeed.label_speeds(a["speed_wps"])},
-                  "pose": np.stack([a["x"], a["y"], a["yaw"]], axis=-1)}
-            ep.update({m: load_teacher(data, m, f.stem) for m in methods})
-            sits.append(situations(a))
-            fits.append({"path": a["path"], "speed_wps": a["speed_wps"], "mu": ep["scimm"]["mu"]})
-        episodes.append(ep)
-    rows = ("raw", *methods)
-    mus = {m: [ep[m]["mu"] for ep in episodes] for m in methods}
-    return table2(episodes, rows), mode_meaning(sits, mus), fit_residuals(fits)

@@ -4,9 +4,15 @@ every episode and write the path teacher P^T, speed teacher V^T and mode posteri
 Per episode: observations z_t = pathspeed.observe(labels of frame t) (paper eq. 2-3); cues
 s_t (scimm.cues) give A(s_t), gamma(s_t) (scimm.modes; Fixed-IMM: A = 0, gamma = 1), turned
 into Pi_t, Q_t by scimm.scene.conditioned (paper eq. 8-9; Pi_t, Q_t govern the step t-1 -> t);
-scimm.imm.imm_filter gives the fused state x_t^T (paper eq. 7) and mu_t; the teacher labels
-are pathspeed.state_path(x_t^T) and pathspeed.state_speeds(x_t^T). Every mode starts at the
+the recorded poses give the ego's motion from frame t-1 to t, the known input that carries
+the state into frame t's ego frame (scimm.ego, SPEC §6.2); scimm.imm.imm_filter gives the
+fused state x_t^T (paper eq. 7) and mu_t; the teacher labels are
+pathspeed.state_path(x_t^T) and pathspeed.state_speeds(x_t^T). Every mode starts at the
 first observation with covariance P0.
+
+Methods: ``fixed`` (Fixed-IMM), ``scimm`` (SC-IMM), ``smoother`` (the SC-IMM forward pass
+followed by the fixed-interval IMM smoother, scimm.smoother: a non-causal offline teacher
+that the paper does not have; its x_t^T and mu_t use every frame of the episode).
 
 Episodes are batched: sorted by length, in groups of ``BATCH`` padded at the end with NaN
 observations (a NaN frame is a missing measurement and never influences earlier frames).
@@ -31,11 +37,13 @@ import numpy as np
 from harness.common.atomic import write_atomic
 from scimm import pathspeed
 from scimm.cues import cue_vector
+from scimm.ego import carry_inputs, pose_change
 from scimm.imm import imm_filter
 from scimm.modes import IMMConfig, fixed_adjustment, scene_adjustment
 from scimm.scene import conditioned
+from scimm.smoother import imm_smooth
 
-METHODS = ("fixed", "scimm")
+METHODS = ("fixed", "scimm", "smoother")
 BATCH = 16  # episodes per IMM batch
 
 
@@ -54,17 +62,22 @@ def dataset_fingerprint(files: Sequence[Path]) -> str:
     return h.hexdigest()
 
 
-def load_inputs(file: Path) -> tuple[np.ndarray, np.ndarray]:
-    """(z (T, 5) observations, s (T, 16) cues) of one episode file."""
+def load_inputs(file: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(z (T, 5) observations, s (T, 16) cues, pose (T, 3) world x, y [m], yaw [rad]) of one
+    episode file."""
     with np.load(file, allow_pickle=False) as a:
-        return pathspeed.observe(a["path"], a["speed_wps"]), cue_vector(a)
+        pose = np.stack([a["x"], a["y"], a["yaw"]], axis=-1).astype(float)
+        return pathspeed.observe(a["path"], a["speed_wps"]), cue_vector(a), pose
 
 
-def run_imm(z: np.ndarray, s: np.ndarray, method: str, cfg: IMMConfig) -> tuple[np.ndarray, np.ndarray]:
+def run_imm(z: np.ndarray, s: np.ndarray, method: str, cfg: IMMConfig, pose: np.ndarray | None = None,
+            lengths: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Fused states x^T (B, T, 5) and mode posteriors mu (B, T, 5) of B padded sequences:
-    observations z (B, T, 5) (NaN rows = missing) and cues s (B, T, 16)."""
+    observations z (B, T, 5) (NaN rows = missing), cues s (B, T, 16), ego poses (B, T, 3)
+    (world x, y [m], yaw [rad]; None = no ego-motion compensation) and the real frames per
+    sequence, lengths (B,) (the smoother starts each backward pass there; default T)."""
     B, T, _ = z.shape
-    if method == "scimm":
+    if method in ("scimm", "smoother"):
         A, gamma = scene_adjustment(s, cfg)
     elif method == "fixed":
         A, gamma = fixed_adjustment((B, T))
@@ -74,7 +87,14 @@ def run_imm(z: np.ndarray, s: np.ndarray, method: str, cfg: IMMConfig) -> tuple[
     first = np.nan_to_num(z[:, 0])
     x0 = np.broadcast_to(first[:, None, :], (B, 5, 5)).copy()
     P0 = np.broadcast_to(cfg.P0, (5, 5, 5)).copy()
-    res = imm_filter(z, cfg.F, Q, cfg.R, x0, P0, Pi, cfg.mu0)
+    move = {}
+    if pose is not None:
+        d, dyaw = zip(*(pose_change(*p.T) for p in np.asarray(pose, dtype=float)))
+        move = dict(zip(("carry", "shift"), carry_inputs(np.array(d), np.array(dyaw))))
+    res = imm_filter(z, cfg.F, Q, cfg.R, x0, P0, Pi, cfg.mu0, keep_P_modes=method == "smoother", **move)
+    if method == "smoother":
+        sm = imm_smooth(res, cfg.F, Q, Pi, lengths=lengths, **move)
+        return sm.x, sm.mu
     return res.x, res.mu
 
 
@@ -90,10 +110,13 @@ def teach(files: Sequence[Path], method: str, cfg: IMMConfig,
         T = max(len(inputs[k][0]) for k in group)
         z = np.full((len(group), T, 5), np.nan)
         s = np.zeros((len(group), T, inputs[group[0]][1].shape[1]))
+        pose = np.zeros((len(group), T, 3))
+        lengths = np.array([len(inputs[k][0]) for k in group])
         for b, k in enumerate(group):
-            n = len(inputs[k][0])
-            z[b, :n], s[b, :n] = inputs[k]
-        x, mu = run_imm(z, s, method, cfg)
+            n = lengths[b]
+            z[b, :n], s[b, :n], pose[b, :n] = inputs[k]
+            pose[b, n:] = pose[b, n - 1] if n else 0.0  # padding stands still
+        x, mu = run_imm(z, s, method, cfg, pose, lengths)
         for b, k in enumerate(group):
             n = len(inputs[k][0])
             out[k] = {"path": pathspeed.state_path(x[b, :n]).astype(np.float32),
@@ -118,6 +141,7 @@ def write_teacher(data: Path, method: str, labels: dict[str, dict[str, np.ndarra
                 np.savez(fh, **arrays)
         write_atomic(folder / f"{stem}.npz", write)
     meta = {"method": method, "modes": ["Cruise", "Turn", "Deceleration", "Avoidance", "Recovery"],
+            "ego_motion_compensated": True, "causal": method != "smoother",
             "episodes": len(files), "dataset_hash": dataset_fingerprint(files),
             "created": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
             "parameters": cfg.as_dict()}

@@ -204,6 +204,13 @@ def build_net(plain: PlainNet, out: Path, note: str = "") -> Path:
             raise RuntimeError("netconvert output has no header comment to replace")
     out.parent.mkdir(parents=True, exist_ok=True)
     tmp_out = out.with_suffix(out.suffix + ".tmp")
-    tmp_out.write_bytes(data)
-    tmp_out.replace(out)
+    try:
+        tmp_out.write_bytes(data)
+        tmp_out.replace(out)
+    except BaseException:  # a full disk, a stop: no temporary file left
+        try:
+            tmp_out.unlink()
+        except OSError:
+            pass
+        raise
     return out

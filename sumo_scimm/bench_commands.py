@@ -64,6 +64,9 @@ def _bench(args: argparse.Namespace) -> int:
     if args.soak < 0:
         raise BadInput(f"--soak {args.soak}: must be >= 0 route runs")
     reproduce = reproduce_figure(args.reproduce) if args.reproduce else None
+    if args.replay:  # checked before anything runs
+        from harness.runs.replay import REPLAY_AGENTS, plan_replay
+        plan_replay(Path(args.replay), list(REPLAY_AGENTS), None)
     m = machine()
     print(f"machine: {m['cpu']}, {m['cores']} cores; torch {m['torch']} ({m['torch_cpu_capability']} kernels), "
           f"onnxruntime {m['onnxruntime']}, libsumo {m['libsumo']}, numpy {m['numpy']}, Python {m['python']}")
@@ -95,6 +98,12 @@ def _bench(args: argparse.Namespace) -> int:
         print(f"reproduce              {reproduce['reproduce_wall_s'] / 60:8.1f} min, {reproduce['stages']} stages, "
               f"from {reproduce['reproduce_dir']}/stages.json as measured when it ran "
               f"(target <= {REPRODUCE_TARGET_S / 60:g} min)")
+    if args.replay:
+        from harness.runs.replay import replay_figure
+        r["replay"] = p = replay_figure(Path(args.replay), args.workers)
+        print(f"replay                 {p['replay_wall_s']:8.1f} s: {p['replay_routes']} routes x {p['replay_agents']} "
+              f"agents, {p['replay_ticks']} ticks, on {p['replay_workers']} workers "
+              f"(target <= {p['replay_target_s']:g} s for 100 routes)")
     if args.json:
         write_atomic(Path(args.json), json.dumps(r, indent=2) + "\n")
     return 0
@@ -119,5 +128,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                          "about 4 min per 100 routes with the student)")
     bn.add_argument("--reproduce", metavar="DIR",
                     help="also print the wall time a finished 'sumo-scimm reproduce --out DIR' recorded")
+    bn.add_argument("--replay", metavar="DIR",
+                    help="also time 'sumo-scimm replay' of the eval run DIR (its every route) with the three shipped "
+                         "students on --workers (SPEC §11: an expert run of town12_short)")
     bn.add_argument("--json", help="also write the figures as JSON to this file")
     bn.set_defaults(func=_bench)

@@ -5,7 +5,8 @@ every one registered here.
 a stage wrote where) go through ``logging`` to stderr. Bad input (unknown town or set,
 malformed file, bad option, an output path that cannot be created or written) prints one
 line ``sumo-scimm: error: ...`` naming the problem and the fix, and returns 2; no
-traceback, no partial output.
+traceback, no partial output. A long number in such a line is cut (a file or an option
+may hold one of any length).
 """
 from __future__ import annotations
 
@@ -18,6 +19,7 @@ import os
 os.environ.setdefault("NUMPY_MADVISE_HUGEPAGE", "0")
 
 import argparse  # noqa: E402
+import errno  # noqa: E402
 import logging  # noqa: E402
 import signal  # noqa: E402
 import sys  # noqa: E402
@@ -25,11 +27,12 @@ import threading  # noqa: E402
 
 from harness.common.errors import BadInput  # noqa: E402
 from sumo_scimm import bench_commands, model_commands, run_commands, teacher_commands, world_commands  # noqa: E402
+from sumo_scimm import replay_commands  # noqa: E402
 from sumo_scimm.options import EXIT_BAD_INPUT, Parser  # noqa: E402
 
 # in the order of the data flow: nets, routes | eval, render, score, report, collect, data |
-# teacher | train, reproduce | bench
-COMMANDS = (world_commands, run_commands, teacher_commands, model_commands, bench_commands)
+# replay | teacher | train, reproduce | bench
+COMMANDS = (world_commands, run_commands, replay_commands, teacher_commands, model_commands, bench_commands)
 
 
 class Terminated(KeyboardInterrupt):
@@ -67,11 +70,23 @@ def _log_to_stderr() -> None:
         root.setLevel(logging.INFO)
 
 
+def _os_error(exc: OSError) -> str:
+    """One line for an OSError: what failed, on which path, and the fix."""
+    where = f": {exc.filename}" if exc.filename else ""
+    if exc.errno in (errno.ENOSPC, errno.EDQUOT):
+        fix = "free some space, then run the command again"
+    elif exc.errno in (errno.EACCES, errno.EPERM, errno.EROFS):
+        fix = "make the path writable, or choose another one"
+    else:
+        fix = "check the path: its folder must exist or be creatable, and be writable"
+    return f"{exc.strerror or exc}{where} ({fix})"
+
+
 def main(argv: list[str] | None = None) -> int:
     """Run the CLI; returns the process exit code. A Ctrl-C or SIGTERM ends the run with
     130 or 143, the records written so far complete and resumable."""
     from scenarios import UnknownSet
-    from scenarios.routefile import RouteFileError
+    from scenarios.routefile import RouteFileError, clip_numbers
     from sumo_nets import UnknownTown
     in_main = threading.current_thread() is threading.main_thread()
     previous = signal.signal(signal.SIGTERM, _raise_terminated) if in_main else None
@@ -80,12 +95,10 @@ def main(argv: list[str] | None = None) -> int:
         args = build_parser().parse_args(argv)
         return args.func(args)
     except (BadInput, UnknownTown, UnknownSet, RouteFileError) as exc:
-        print(f"sumo-scimm: error: {exc}", file=sys.stderr)
+        print(f"sumo-scimm: error: {clip_numbers(str(exc))}", file=sys.stderr)
         return EXIT_BAD_INPUT
-    except OSError as exc:  # a path the command cannot create, read or write (a run's own failures are records)
-        where = f": {exc.filename}" if exc.filename else ""
-        print(f"sumo-scimm: error: {exc.strerror or exc}{where} (check the path: its folder must exist or "
-              "be creatable, and be writable)", file=sys.stderr)
+    except OSError as exc:  # a path the command cannot create, read or write (a route's own failures are records)
+        print(f"sumo-scimm: error: {_os_error(exc)}", file=sys.stderr)
         return EXIT_BAD_INPUT
     except KeyboardInterrupt as exc:
         if isinstance(exc, Terminated):

@@ -49,7 +49,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                         description="Train the student (BEV + target point + speed -> path and speed "
                         "waypoints) on a 'collect' folder, optionally with teacher labels.")
     tr.add_argument("--data", required=True, help="training dataset folder (from 'sumo-scimm collect')")
-    tr.add_argument("--teacher", choices=("none", "fixed", "scimm"), default="none",
+    tr.add_argument("--teacher", choices=("none", "fixed", "scimm", "smoother"), default="none",
                     help="teacher labels from DATA/teacher/<method> (default none = baseline)")
     tr.add_argument("--val", help="validation dataset folder; its L_origin is reported after every epoch")
     tr.add_argument("--seed", type=int, default=0, help="seed of weights, sample order, views (default 0)")
@@ -59,7 +59,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     tr.set_defaults(func=_train)
 
     r = sub.add_parser("reproduce", help="the paper's whole experiment: collect, teachers, train, eval, tables",
-                       description="Collect -> teachers -> train baseline/fixed/scimm per seed -> eval on "
+                       description="Collect -> teachers -> train baseline/fixed/scimm/smoother per seed -> eval on "
                        f"{EVAL_SET} -> Tables 2-4, Fig. 4-5. Resumes: finished stages are skipped.")
     r.add_argument("--seeds", type=int, default=1, help="training/evaluation seeds per arm (default 1)")
     r.add_argument("--workers", type=int, default=os.cpu_count() or 1, help="simulation processes (default: cores)")

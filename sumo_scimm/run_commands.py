@@ -23,9 +23,11 @@ def _eval(args: argparse.Namespace) -> int:
                    subset=args.routes_subset, repetitions=args.repetitions, seed=args.seed, resume=args.resume,
                    checkpoint=Path(args.checkpoint) if args.checkpoint else None, rules=args.rules,
                    agent_timeout=args.agent_timeout, backend=backend_of(args))
+    from harness.scoring.outputs import success_rate
     m = res.global_record["scores_mean"]
     print(f"{len(res.records)} routes -> {res.out}: DS {m['score_composed']:.2f}, RC {m['score_route']:.2f}, "
-          f"IS {m['score_penalty']:.3f}; " + ", ".join(f"{k} {v}" for k, v in res.statuses().items()))
+          f"IS {m['score_penalty']:.3f}, SR {success_rate(res.records):.1f} %; "
+          + ", ".join(f"{k} {v}" for k, v in res.statuses().items()))
     mem = res.memory
     if mem is not None:
         print(f"worker memory: {mem['workers']} processes, up to {mem['max_routes_per_worker']} routes each; "
@@ -79,31 +81,40 @@ def _render_overlay(args: argparse.Namespace) -> int:
 
 
 def _score(args: argparse.Namespace) -> int:
-    from harness.scoring.scores import ScoreError, rescore_results
+    from harness.scoring.scores import NOT_RESULTS, ScoreError, rescore_results, results_text
     path = Path(args.results)
     if not path.is_file():
         raise BadInput(f"{path}: no such results file")
+    notes: list[str] = []
     try:
         data = json.loads(path.read_text())
-        out = rescore_results(data, args.rules)
+        out = rescore_results(data, args.rules, notes)
+        text = results_text(out) + "\n"  # numbers checked finite (harness.scoring.validate); others: ValueError
     except (json.JSONDecodeError, UnicodeDecodeError, RecursionError) as exc:
         raise BadInput(f"{path}: not JSON ({exc})") from None
-    except (ScoreError, KeyError, TypeError, ValueError, IndexError, AttributeError, OverflowError) as exc:
-        raise BadInput(f"{path}: not a Leaderboard results file ({exc})") from None
-    text = json.dumps(out, indent=2) + "\n"
+    except ScoreError as exc:  # one complete sentence
+        raise BadInput(f"{path}: {exc}") from None
+    except (KeyError, TypeError, ValueError, IndexError, AttributeError, OverflowError) as exc:
+        raise BadInput(f"{path}: {NOT_RESULTS} ({type(exc).__name__}: {exc})") from None
+    for note in notes:
+        print(f"note: {note}", file=sys.stderr)
     if args.out:
         write_atomic(Path(args.out), text)
-        g = out["_checkpoint"]["global_record"]["scores_mean"]
-        print(f"{args.out}: DS {g['score_composed']}, RC {g['score_route']}, IS {g['score_penalty']}")
+        g = out["_checkpoint"]["global_record"]
+        done, total = out["_checkpoint"]["progress"][:2]
+        print(f"{args.out}: DS {g['scores_mean']['score_composed']}, RC {g['scores_mean']['score_route']}, "
+              f"IS {g['scores_mean']['score_penalty']}" if g else
+              f"{args.out}: {done} of {total} route runs, {out['entry_status']}: route scores only (the "
+              "leaderboard writes the global record when every route has run)")
     else:
         sys.stdout.write(text)
     return 0
 
 
 def _report(args: argparse.Namespace) -> int:
-    from harness.scoring.report import ReportError, write_report
+    from harness.scoring.report import ReportError, parse_arms, write_report
     try:
-        print(write_report([Path(d) for d in args.runs], Path(args.out)))
+        print(write_report(parse_arms(args.runs), Path(args.out)))
     except ReportError as exc:
         raise BadInput(str(exc)) from None
     return 0
@@ -183,9 +194,12 @@ def register(sub: argparse._SubParsersAction) -> None:
     sc.add_argument("--out", help="write the rescored JSON here (default: print it)")
     sc.set_defaults(func=_score)
 
-    rp = sub.add_parser("report", help="the paper's Tables 3 and 4 for several run folders")
-    rp.add_argument("runs", nargs="+", help="run folders of 'sumo-scimm eval'; the first is the baseline")
-    rp.add_argument("--out", default="report", help="folder for table3/table4 .csv and .md (default report)")
+    rp = sub.add_parser("report", help="the paper's Tables 3 and 4 for several arms, with paired intervals")
+    rp.add_argument("runs", nargs="+", metavar="ARM",
+                    help="run folder of 'sumo-scimm eval', or NAME=DIR[,DIR...] for an arm of several runs "
+                         "(seeds); the first arm is the baseline")
+    rp.add_argument("--out", default="report", help="folder for the tables as .csv and .md: table3, table4 "
+                    "(and _common), b2d, per_hazard (default report)")
     rp.set_defaults(func=_report)
 
     co = sub.add_parser("collect", help="drive the expert over a route set and record a dataset at 4 Hz")

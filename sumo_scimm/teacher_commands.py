@@ -1,10 +1,11 @@
 """``sumo-scimm teacher ...``: the teacher stage's subcommands (SPEC §6).
 
-    sumo-scimm teacher --data DIR [--method fixed|scimm|all]
-        writes DIR/teacher/<method>/ (scimm.teacher), then, when both the fixed and the
-        scimm folders are complete, prints paper Table 2 (also DIR/teacher/table2.csv),
-        the mode-meaning check (also DIR/teacher/mode_meaning.csv) and the fit residual of
-        the observation per mode (also DIR/teacher/fit_residuals.csv; SPEC §6.1).
+    sumo-scimm teacher --data DIR [--method fixed|scimm|smoother|all]
+        writes DIR/teacher/<method>/ (scimm.teacher), then, when every method's folder is
+        complete, prints paper Table 2 (also DIR/teacher/table2.csv), the mode-meaning
+        check (also DIR/teacher/mode_meaning.csv), the fit residual of the observation per
+        mode (also DIR/teacher/fit_residuals.csv; SPEC §6.1) and the lag figures (also
+        DIR/teacher/lag.csv and standstill.csv; scimm.lag).
     sumo-scimm teacher plot --data DIR --episode E --out FILE.png
         paper Fig. 4 for episode E (its file stem, e.g. 12_rep0).
 """
@@ -21,13 +22,15 @@ METHOD_CHOICES = (*tch.METHODS, "all")
 
 
 def _teacher(args: argparse.Namespace) -> int:
+    from scimm.lag import format_lag
     from scimm.table2 import format_meaning, format_residuals, format_table2
     folder, files = dataset_episodes(args.data)
     make_teachers(folder, files, tch.METHODS if args.method == "all" else (args.method,))
-    if not all(tch.is_complete(folder, m) for m in ("fixed", "scimm")):
-        print("Table 2 needs both teachers: run with --method all")
+    if not all(tch.is_complete(folder, m) for m in tch.METHODS):
+        print(f"Table 2 needs every teacher ({', '.join(tch.METHODS)}): run with --method all")
         return 0
-    table, meaning, residuals = write_tables(folder, files)
+    tables = write_tables(folder, files)
+    table, meaning, residuals = tables["table2"], tables["mode_meaning"], tables["fit_residuals"]
     print(f"Table 2 ({len(files)} episodes; groups = dominant SC-IMM mode) -> {folder / 'teacher' / 'table2.csv'}")
     print(format_table2(table))
     print("\nMode meaning: frames of each situation whose dominant mode means it")
@@ -35,6 +38,10 @@ def _teacher(args: argparse.Namespace) -> int:
     print("\nFit residual of the observation z (paper eq. 2-3) against the expert's labels, per dominant "
           f"SC-IMM mode -> {folder / 'teacher' / 'fit_residuals.csv'}")
     print(format_residuals(residuals))
+    print("\nLag against the expert: the frame offset that best aligns the teacher's v(0) and c0 with the "
+          f"expert's (> 0 = late), per dominant SC-IMM mode -> {folder / 'teacher' / 'lag.csv'}; the teacher's "
+          f"v(0) where the expert has stood >= 0.5 s, and mode switches -> {folder / 'teacher' / 'standstill.csv'}")
+    print(format_lag(tables["lag"], tables["standstill"]))
     return 0
 
 
@@ -58,7 +65,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     t = sub.add_parser("teacher", help="SC-IMM teacher signals of a dataset, Table 2; 'teacher plot' for Fig. 4")
     t.add_argument("--data", help="dataset folder (of 'sumo-scimm collect')")
     t.add_argument("--method", default="all", choices=METHOD_CHOICES,
-                   help="teacher to compute (default all: fixed and scimm)")
+                   help="teacher to compute (default all: fixed, scimm and smoother)")
     t.set_defaults(func=_teacher)
     tsub = t.add_subparsers(dest="teacher_action", parser_class=type(t), metavar="{plot}")
     p = tsub.add_parser("plot", help="paper Fig. 4: BEV of a few frames and the mode posterior over time")

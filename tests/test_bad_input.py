@@ -12,6 +12,7 @@ from pathlib import Path
 
 import pytest
 
+from harness.common.errors import BadInput
 from sumo_scimm.cli import main
 
 SMOKE_ROUTE = ["eval", "--routes", "town12_smoke", "--routes-subset", "0", "--agent", "route_follower",
@@ -74,7 +75,7 @@ def test_resume_refuses_a_folder_that_holds_another_run(one_route_run, tmp_path,
 def test_resume_of_a_folder_without_run_json_checks_its_records(one_route_run, tmp_path):
     out = tmp_path / "run"
     shutil.copytree(one_route_run, out)
-    (out / "run.json").unlink()
+    (out / "run.jsonc").unlink()
     code, printed = _cli([*SMOKE_ROUTE, "--seed", "3", "--out", str(out), "--resume"])
     _one_line_exit_2(code, printed, "record 0_rep0 has seed")
     # the same options: nothing left to run, the scores are printed again; no run.json is
@@ -82,7 +83,7 @@ def test_resume_of_a_folder_without_run_json_checks_its_records(one_route_run, t
     code, printed = _cli([*SMOKE_ROUTE, "--out", str(out), "--resume"])
     assert code == 0, printed
     assert "1 routes ->" in printed, printed
-    assert not (out / "run.json").exists()
+    assert not (out / "run.jsonc").exists()
     # with a route left to run: refused, the records' software is unknown
     code, printed = _cli([*SMOKE_TWO, "--out", str(out), "--resume"])
     _one_line_exit_2(code, printed, "did not record its software", "start the run afresh")
@@ -102,10 +103,10 @@ def half_run(tmp_path_factory) -> Path:
 def _with_software(src: Path, dst: Path, entry: str, value: str) -> dict:
     """A copy of run folder src whose run.json names another ``entry`` of the software."""
     shutil.copytree(src, dst)
-    identity = json.loads((dst / "run.json").read_text())
+    identity = json.loads((dst / "run.jsonc").read_text())
     assert identity["software"][entry] not in (None, value)  # recorded when the run started
     identity["software"][entry] = value
-    (dst / "run.json").write_text(json.dumps(identity))
+    (dst / "run.jsonc").write_text(json.dumps(identity))
     return identity
 
 
@@ -133,7 +134,7 @@ def test_a_finished_run_is_scored_again_by_other_software_and_keeps_its_run_json
     code, printed = _cli([*SMOKE_ROUTE, "--out", str(out), "--resume"])
     assert code == 0, printed
     assert "1 routes ->" in printed, printed
-    assert json.loads((out / "run.json").read_text()) == identity
+    assert json.loads((out / "run.jsonc").read_text()) == identity
 
 
 @pytest.mark.slow
@@ -146,18 +147,18 @@ def test_a_run_without_a_record_yet_starts_again_with_other_software(half_run, t
     code, printed = _cli([*SMOKE_TWO, "--out", str(out), "--resume"])
     assert code == 0, printed
     assert "2 routes ->" in printed, printed
-    assert json.loads((out / "run.json").read_text()) == json.loads((half_run / "run.json").read_text())
+    assert json.loads((out / "run.jsonc").read_text()) == json.loads((half_run / "run.jsonc").read_text())
     # the same for a run.json of the older layout, which names no software (no *_digest fields)
     old = tmp_path / "old"
     shutil.copytree(half_run, old)
-    runs = json.loads((old / "run.json").read_text())["route_runs"]
-    (old / "run.json").write_text(json.dumps({k: {f: v for f, v in r.items() if not f.endswith("_digest")}
+    runs = json.loads((old / "run.jsonc").read_text())["route_runs"]
+    (old / "run.jsonc").write_text(json.dumps({k: {f: v for f, v in r.items() if not f.endswith("_digest")}
                                               for k, r in runs.items()}))
     (old / "records.jsonl").write_text("")
     code, printed = _cli([*SMOKE_TWO, "--out", str(old), "--resume"])
     assert code == 0, printed
     assert "2 routes ->" in printed, printed
-    assert json.loads((old / "run.json").read_text()) == json.loads((half_run / "run.json").read_text())
+    assert json.loads((old / "run.jsonc").read_text()) == json.loads((half_run / "run.jsonc").read_text())
 
 
 def test_resume_refuses_a_run_json_that_does_not_name_its_software(half_run, one_route_run, tmp_path):
@@ -166,9 +167,9 @@ def test_resume_refuses_a_run_json_that_does_not_name_its_software(half_run, one
     for src, name in ((half_run, "half"), (one_route_run, "done")):
         out = tmp_path / name
         shutil.copytree(src, out)
-        identity = json.loads((out / "run.json").read_text())
+        identity = json.loads((out / "run.jsonc").read_text())
         old = {k: {f: v for f, v in r.items() if not f.endswith("_digest")} for k, r in identity["route_runs"].items()}
-        (out / "run.json").write_text(json.dumps(old))
+        (out / "run.jsonc").write_text(json.dumps(old))
     before = _tree(tmp_path / "half")
     code, printed = _cli([*SMOKE_TWO, "--out", str(tmp_path / "half"), "--resume"])
     _one_line_exit_2(code, printed, "did not record its software", "start the run afresh")
@@ -188,7 +189,7 @@ def test_resume_refuses_a_run_json_that_does_not_name_its_software(half_run, one
 def test_resume_of_a_damaged_run_json_is_one_line(half_run, tmp_path, damage, words):
     out = tmp_path / "run"
     shutil.copytree(half_run, out)
-    damage(out / "run.json")
+    damage(out / "run.jsonc")
     before = _tree(out)
     code, printed = _cli([*SMOKE_TWO, "--out", str(out), "--resume"])
     _one_line_exit_2(code, printed, *words)
@@ -271,6 +272,58 @@ def test_report_refuses_an_unfinished_run_and_a_damaged_records_csv(one_route_ru
     code, printed = _cli(["report", str(run), "--out", str(tmp_path / "report")])
     _one_line_exit_2(code, printed, "records.csv", "KeyError")
     assert not (tmp_path / "report").exists()
+
+
+def _csv_rows(path: Path) -> tuple[list[str], list[dict]]:
+    import csv
+    with open(path, newline="") as f:
+        reader = csv.DictReader(f)
+        return list(reader.fieldnames or ()), list(reader)
+
+
+def _write_csv(path: Path, fields: list[str], rows: list[dict]) -> None:
+    import csv
+    with open(path, "w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=fields)
+        w.writeheader()
+        w.writerows(rows)
+
+
+@pytest.mark.parametrize("damage, words", [
+    (lambda fields, rows: (fields, []), ["records.csv has no route row"]),  # once a table of nan, exit 0
+    (lambda fields, rows: (fields, [{**rows[0], "ds": "nan"}]), ["row 1 ds is 'nan', not a finite number"]),
+    (lambda fields, rows: (fields, [{**rows[0], "rc": "-50"}]), ["row 1 rc is '-50', outside [0, 100]"]),
+    (lambda fields, rows: (fields, rows * 2), ["has 2 rows but results.json 1 records"]),
+])
+def test_report_refuses_a_damaged_run_folder(one_route_run, tmp_path, damage, words):
+    run = tmp_path / "run"
+    shutil.copytree(one_route_run, run)
+    _write_csv(run / "records.csv", *damage(*_csv_rows(run / "records.csv")))
+    code, printed = _cli(["report", str(run), "--out", str(tmp_path / "report")])
+    _one_line_exit_2(code, printed, str(run / "records.csv"), *words, "damaged")
+    assert not (tmp_path / "report").exists()
+
+
+def test_report_refuses_a_results_json_with_a_number_out_of_range(one_route_run, tmp_path):
+    run = tmp_path / "run"
+    shutil.copytree(one_route_run, run)
+    data = json.loads((run / "results.json").read_text())
+    data["_checkpoint"]["records"][0]["meta"]["route_length"] = -1.0
+    (run / "results.json").write_text(json.dumps(data))
+    code, printed = _cli(["report", str(run), "--out", str(tmp_path / "report")])
+    _one_line_exit_2(code, printed, "meta.route_length is -1.0, outside (0, 1e+07]")
+
+
+def test_a_checkpoint_that_is_not_a_torch_file_is_called_so(tmp_path):
+    """Before, a plain-text .pt was reported as holding Python objects that could run code."""
+    from model.checkpoint import load_checkpoint
+    text = tmp_path / "notes.pt"
+    text.write_text("hello, this is not a model\n")
+    with pytest.raises(BadInput, match=r"notes.pt is not a torch file \(it starts with b'hell'\)"):
+        load_checkpoint(text)
+    code, printed = _cli(["eval", "--routes", "town12_smoke", "--agent", str(text), "--out", str(tmp_path / "run")])
+    _one_line_exit_2(code, printed, "is not a torch file")
+    assert not (tmp_path / "run").exists()
 
 
 def test_data_show_on_damaged_or_empty_datasets(tmp_path):

@@ -289,3 +289,58 @@ def test_bench_reports_its_figures_from_a_fresh_process():
     assert r["filterpy_frames_per_s"] > 0
     assert r["max_abs_diff_x"] < 1e-9
     assert r["max_abs_diff_mu"] < 1e-9
+
+
+def test_known_input_equals_filterpy_with_per_frame_transition_and_control():
+    """Step 3b (the ego-motion carry): x_t = F_j (C_t x_t-1 + u_t) + w is filterpy's
+    KalmanFilter with F = F_j C_t, B = F_j and control u_t, mixed by its IMMEstimator.
+    Measurements simulated from that model, so innovations stay moderate (filterpy replaces
+    an underflowing likelihood by the smallest float, which a wild system would trigger)."""
+    rng = np.random.default_rng(12)
+    F, Q, R, Pi, mu0, P0 = random_system(rng)
+    B, Tn = 2, 40
+    C = np.eye(N) + 0.1 * rng.normal(size=(B, Tn, N, N))
+    u = 0.3 * rng.normal(size=(B, Tn, N))
+    z = np.empty((B, Tn, N))
+    for b in range(B):
+        x, mode = rng.normal(size=N), 0
+        for t in range(Tn):
+            mode = rng.choice(M, p=Pi[mode])
+            x = F[mode] @ (C[b, t] @ x + u[b, t]) + rng.multivariate_normal(np.zeros(N), Q[mode])
+            z[b, t] = x + rng.multivariate_normal(np.zeros(N), R)
+    x0 = rng.normal(size=(B, M, N))
+    res = imm_filter(z, F, Q, R, x0, P0, Pi, mu0, carry=C, shift=u, keep_P_modes=True)
+    for b in range(B):
+        filters = []
+        for j in range(M):
+            kf = KalmanFilter(dim_x=N, dim_z=N, dim_u=N)
+            kf.Q, kf.R, kf.H, kf.x, kf.P = Q[j], R, np.eye(N), x0[b, j].copy(), P0[j].copy()
+            filters.append(kf)
+        imm = IMMEstimator(filters, mu0.copy(), Pi)
+        for t in range(Tn):
+            for j, kf in enumerate(filters):
+                kf.F, kf.B = F[j] @ C[b, t], F[j]
+            imm.predict(u[b, t])
+            imm.update(z[b, t])
+            np.testing.assert_allclose(res.x[b, t], np.ravel(imm.x), atol=1e-9, rtol=0)
+            np.testing.assert_allclose(res.mu[b, t], np.ravel(imm.mu), atol=1e-9, rtol=0)
+            for j, kf in enumerate(filters):
+                np.testing.assert_allclose(res.P_modes[b, t, j], kf.P, atol=1e-9, rtol=0)
+
+
+def test_a_zero_pose_change_is_the_uncompensated_filter_bit_for_bit():
+    # C = I, u = 0: every product is by 1 or 0 and every sum adds exact zeros
+    rng = np.random.default_rng(13)
+    F, Q, R, Pi, mu0, P0 = random_system(rng)
+    B, Tn = 2, 30
+    z = simulate(rng, F, Q, R, Pi, B=B, T=Tn)
+    x0 = rng.normal(size=(B, M, N))
+    plain = imm_filter(z, F, Q, R, x0, P0, Pi, mu0)
+    still = imm_filter(z, F, Q, R, x0, P0, Pi, mu0, carry=np.broadcast_to(np.eye(N), (B, Tn, N, N)),
+                       shift=np.zeros((B, Tn, N)))
+    for field in ("x", "P", "mu", "x_modes", "loglik"):
+        np.testing.assert_array_equal(getattr(still, field), getattr(plain, field))
+    with pytest.raises(ValueError, match="give both or neither"):
+        imm_filter(z, F, Q, R, x0, P0, Pi, mu0, carry=np.broadcast_to(np.eye(N), (B, Tn, N, N)))
+    with pytest.raises(ValueError, match="carry must be"):
+        imm_filter(z, F, Q, R, x0, P0, Pi, mu0, carry=np.eye(N), shift=np.zeros(N))

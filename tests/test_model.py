@@ -298,7 +298,7 @@ def test_a_missing_or_corrupt_model_checkpoint_is_one_line_of_bad_input(tmp_path
     with pytest.raises(BadInput, match="not found"):
         load_checkpoint(tmp_path / "nope.pt")
     (tmp_path / "junk.pt").write_bytes(b"\x00not a torch file" * 10)
-    with pytest.raises(BadInput, match="corrupt") as exc:
+    with pytest.raises(BadInput, match="not a torch file") as exc:
         load_checkpoint(tmp_path / "junk.pt")
     assert "\n" not in str(exc.value)
     torch.save({"format": "other"}, tmp_path / "other.pt")

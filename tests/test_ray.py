@@ -240,5 +240,5 @@ def test_two_node_cluster_from_the_docs_gives_the_local_backends_records(tmp_pat
     local = tmp_path / "local"
     assert main([*routes, "--workers", "2", "--out", str(local)]) == 0
     _assert_same_route_runs(local, ray_out, keys)
-    runs = [json.loads((out / "run.json").read_text())["route_runs"] for out in (local, ray_out)]
+    runs = [json.loads((out / "run.jsonc").read_text())["route_runs"] for out in (local, ray_out)]
     assert runs[0] == runs[1]

@@ -26,6 +26,7 @@ from hypothesis import example, given, settings, strategies as st
 from controller.vehicle import Control
 from sumo_scimm.cli import main
 from harness.loop.route_follower import RouteFollower
+from harness.runs.evaluate import MAX_ROUTE_RUNS
 from harness.runs.runner import rss_summary
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -344,6 +345,8 @@ _letters = st.text(alphabet="abcxyz_-:. ", min_size=1, max_size=10)
 BAD_OPTIONS = st.one_of(
     st.tuples(st.sampled_from(["--workers", "--repetitions"]),
               st.one_of(st.integers(max_value=0).map(str), _text.filter(_not_int))),
+    # more route runs than a run may hold (4 routes in the smoke set); refused at once
+    st.tuples(st.just("--repetitions"), st.integers(min_value=MAX_ROUTE_RUNS // 4 + 1).map(str)),
     st.tuples(st.just("--seed"), st.one_of(st.integers(max_value=-1).map(str), _text.filter(_not_int))),
     st.tuples(st.just("--agent-timeout"),
               st.one_of(st.floats(max_value=0.0).map(repr), st.sampled_from(["nan", "inf", "-inf"]),
@@ -352,17 +355,25 @@ BAD_OPTIONS = st.one_of(
               st.one_of(st.integers(min_value=4).map(str),  # the smoke set has routes 0-3
                         st.tuples(st.integers(4, 99), st.integers(4, 99)).map(lambda t: f"{t[0]}-{t[1]}"),
                         st.integers(4, 10**6).map(lambda i: f"0,{i}"),
-                        _letters.filter(lambda s: s.strip(" ,") != ""))),
+                        st.tuples(st.integers(1, 3), st.integers(0, 3)).filter(lambda t: t[0] > t[1])
+                        .map(lambda t: f"{t[0]}-{t[1]}"),  # reversed
+                        st.integers(4, 10**400).map(lambda i: f"0,2-{i}"),  # a range is no escape
+                        _letters)),  # the empty subset and " , " included
     st.tuples(st.just("--agent"), st.one_of(st.from_regex(r"zz[a-z]{1,8}", fullmatch=True),
                                             st.from_regex(r"zz[a-z]{1,8}:[A-Z][a-z]{1,6}", fullmatch=True),
                                             st.from_regex(r"harness\.agent:[A-Z][a-z]{1,6}X", fullmatch=True))),
     st.tuples(st.just("--backend"), _text.filter(lambda s: s not in ("local", "ray"))),
     st.tuples(st.just("--address"), st.from_regex(r"[a-z0-9.]{1,12}:[0-9]{1,5}", fullmatch=True)),  # no --backend ray
 )
+_EMPTY_SUBSETS = [("--routes-subset", v) for v in ("", ",", " , ")]
 
 
 @settings(max_examples=60, deadline=None)
 @given(option=BAD_OPTIONS, command=st.sampled_from(["eval", "collect"]))
+@example(option=_EMPTY_SUBSETS[0], command="eval")  # once ran every route
+@example(option=_EMPTY_SUBSETS[2], command="eval")
+@example(option=("--repetitions", "1000000000"), command="eval")  # once built its job list for ever
+@example(option=("--repetitions", "9" * 300), command="collect")
 def test_bad_cli_values_are_one_line_exit_2_and_write_nothing(tmp_path_factory, option, command):
     name, value = option
     if command == "collect" and name in ("--agent", "--agent-timeout", "--routes-subset"):
@@ -374,6 +385,7 @@ def test_bad_cli_values_are_one_line_exit_2_and_write_nothing(tmp_path_factory, 
     assert len(lines) == 1, printed
     assert lines[0].startswith("sumo-scimm: error: "), printed
     assert "Traceback" not in printed
+    assert len(lines[0]) < 300, printed  # a long number is cut
     assert not out.exists()
 
 

@@ -1,27 +1,36 @@
-"""Tables 3-4 over several seeds per arm (harness.scoring.report.write_arm_report), on hand-made
-run folders whose figures are worked out by hand."""
+"""Tables 3-4 of several arms (harness.scoring.report), on hand-made run folders whose figures
+are worked out by hand: means with intervals, route-paired differences, seed-level
+resampling, the common-routes tables, and older records completed from their logs."""
 from __future__ import annotations
 
 import csv
 import json
 from pathlib import Path
 
+import numpy as np
 import pytest
 
-from harness.scoring.report import TABLE4, arm_figures, fig, write_arm_report
+from harness.scoring.records import STABILITY
+from harness.scoring.report import (ReportError, arm_figures, compare, completed_keys, fig, parse_arms, route_rows,
+                                    write_report)
+from harness.scoring.stability import stability
 
-COLS = ["key", "ds", "rc", "is", "collisions_layout", "collisions_pedestrian", "collisions_vehicle",
-        "km_driven"] + [k for k, _ in TABLE4]
+COLS = ["key", "status", "ds", "rc", "is", "collisions_layout", "collisions_pedestrian", "collisions_vehicle",
+        "km_driven", *STABILITY]
 
 
-def _run(folder: Path, rows: list[tuple]) -> Path:
-    """rows: (key, ds, rc, is, vehicle collisions, km, steering jerk)."""
+def _run(folder: Path, rows: list[tuple], columns=COLS) -> Path:
+    """rows: (key, ds, vehicle collisions, km, steering jerk (moving), status)."""
     folder.mkdir(parents=True)
     with open(folder / "records.csv", "w", newline="") as f:
         w = csv.writer(f)
-        w.writerow(COLS)
-        for key, ds, rc, is_, coll, km, sj in rows:
-            w.writerow([key, ds, rc, is_, 0, 0, coll, km, sj, 1.0, 0.001, 0.5])
+        w.writerow(columns)
+        for key, ds, coll, km, sj, *status in rows:
+            stab = {k: 1.0 for k in STABILITY} | {"steering_jerk_moving": sj}
+            rec = {"key": key, "status": status[0] if status else "Completed", "ds": ds, "rc": 100.0,
+                   "is": ds / 100, "collisions_layout": 0, "collisions_pedestrian": 0, "collisions_vehicle": coll,
+                   "km_driven": km, **stab}
+            w.writerow([rec[c] for c in columns])
     mean = {"score_composed": sum(r[1] for r in rows) / len(rows), "score_route": 100.0, "score_penalty": 1.0}
     (folder / "results.json").write_text(json.dumps({"_checkpoint": {"global_record": {"scores_mean": mean}},
                                                      "entry_status": "Finished"}))
@@ -29,33 +38,120 @@ def _run(folder: Path, rows: list[tuple]) -> Path:
 
 
 def test_mean_over_seeds_interval_and_change_against_the_baseline(tmp_path):
-    b0 = _run(tmp_path / "b0", [("0_rep0", 40.0, 100, 0.4, 1, 0.3, 2.0), ("1_rep0", 60.0, 100, 0.6, 0, 0.3, 4.0)])
-    b1 = _run(tmp_path / "b1", [("0_rep0", 50.0, 100, 0.5, 0, 0.3, 2.0), ("1_rep0", 70.0, 100, 0.7, 1, 0.3, 4.0)])
-    s0 = _run(tmp_path / "s0", [("0_rep0", 66.0, 100, 0.66, 0, 0.3, 1.0), ("1_rep0", 66.0, 100, 0.66, 0, 0.3, 1.0)])
+    b0 = _run(tmp_path / "b0", [("0_rep0", 40.0, 1, 0.3, 2.0), ("1_rep0", 60.0, 0, 0.3, 4.0)])
+    b1 = _run(tmp_path / "b1", [("0_rep0", 50.0, 0, 0.3, 2.0), ("1_rep0", 70.0, 1, 0.3, 4.0)])
+    s0 = _run(tmp_path / "s0", [("0_rep0", 66.0, 0, 0.3, 1.0), ("1_rep0", 66.0, 0, 0.3, 1.0)])
     f = arm_figures([b0, b1], n_boot=500)
     # DS: seed means 50 and 60 -> 55; collisions: 1 per 0.6 km in each seed -> 1.667 /km
     assert f["DS"][0] == pytest.approx(55.0)
     assert f["Collision/km"][0] == pytest.approx(1 / 0.6)
-    assert f["steering_jerk"][0] == pytest.approx(3.0)
+    assert f["steering_jerk_moving"][0] == pytest.approx(3.0)
     # any resample of seeds and routes averages values between the smallest and largest route
     assert 40.0 <= f["DS"][1] <= 55.0 <= f["DS"][2] <= 70.0
     # one seed whose routes agree: the interval collapses to the value
     g = arm_figures([s0], n_boot=200)
     assert g["DS"] == pytest.approx((66.0, 66.0, 66.0))
-    text = write_arm_report({"baseline": [b0, b1], "scimm": [s0]}, tmp_path / "tables", n_boot=200)
+    text = write_report({"baseline": [b0, b1], "scimm": [s0]}, tmp_path / "tables", n_boot=200)
     rows = list(csv.DictReader(open(tmp_path / "tables" / "table3.csv")))
     # change as the paper computes it: 100 (66 - 55) / 55 = +20 %; steering jerk 100 (1 - 3) / 3
     assert float(rows[1]["DS change %"]) == pytest.approx(20.0)
+    assert float(rows[1]["DS diff"]) == pytest.approx(11.0)
     rows4 = list(csv.DictReader(open(tmp_path / "tables" / "table4.csv")))
-    assert float(rows4[1]["steering_jerk change %"]) == pytest.approx(-200 / 3)
-    assert "(+20.0 %)" in text
-    assert (tmp_path / "tables" / "table3.md").is_file()
+    assert float(rows4[1]["steering_jerk_moving change %"]) == pytest.approx(-200 / 3)
+    assert "(+20.0 % [" in text
+    for stem in ("table3", "table4", "table3_common", "table4_common"):
+        assert (tmp_path / "tables" / f"{stem}.md").is_file()
     # figures keep 4 significant digits: the baseline's DS reads 55, its steering jerk 3
     assert "| baseline | 2 | 55 [" in text
-    assert "| scimm | 1 | 66 [66, 66] (+20.0 %)" in text
+    assert "| scimm | 1 | 66 [66, 66] |" in text
+    assert "| scimm | +11 [" in text
+
+
+def test_a_route_paired_difference_has_no_spread_when_every_route_moves_alike(tmp_path):
+    # routes differ widely (DS 20..80) but the second arm is 5 points above on every route:
+    # each arm's interval is wide, the paired difference is 5 in every draw
+    routes = [(f"{i}_rep0", ds, 0, 0.3, ds / 10) for i, ds in enumerate([20.0, 35.0, 50.0, 65.0, 80.0])]
+    a = _run(tmp_path / "a", routes)
+    b = _run(tmp_path / "b", [(k, ds + 5, c, km, sj + 1) for k, ds, c, km, sj in routes])
+    res = compare({"a": [route_rows(a)], "b": [route_rows(b)]}, [("DS", ""), ("steering_jerk_moving", "")],
+                  n_boot=300)
+    assert res["b"]["DS"]["value"] == pytest.approx(55.0)  # (25 + 40 + 55 + 70 + 85) / 5
+    assert res["b"]["DS"]["high"] - res["b"]["DS"]["low"] > 20  # the unpaired interval
+    assert (res["b"]["DS"]["diff"], res["b"]["DS"]["diff_low"], res["b"]["DS"]["diff_high"]) == pytest.approx((5, 5, 5))
+    assert res["b"]["steering_jerk_moving"]["diff_low"] == pytest.approx(1.0)
+    assert res["a"]["DS"]["diff"] == 0.0 and res["a"]["DS"]["routes"] == 5
+    # the relative change of each draw, 100 * 5 / (its baseline mean), lies between the
+    # change at the largest possible baseline mean (80) and at the smallest (20)
+    assert 100 * 5 / 80 <= res["b"]["DS"]["change_low"] <= res["b"]["DS"]["change"] <= res["b"]["DS"]["change_high"] <= 25
+
+
+def test_seed_level_resampling_spreads_the_difference_over_the_arm_seeds(tmp_path):
+    routes = [("0_rep0", 50.0, 0, 0.3, 1.0), ("1_rep0", 50.0, 0, 0.3, 1.0)]
+    base = _run(tmp_path / "base", routes)
+    s0 = _run(tmp_path / "s0", [(k, 60.0, c, km, sj) for k, _, c, km, sj in routes])
+    s1 = _run(tmp_path / "s1", [(k, 40.0, c, km, sj) for k, _, c, km, sj in routes])
+    res = compare({"base": [route_rows(base)], "arm": [route_rows(s0), route_rows(s1)]}, [("DS", "")], n_boot=400)
+    d = res["arm"]["DS"]
+    # seeds 60 and 40 mean 50: no difference on average, but a draw of two seeds gives
+    # 60 + 60, 60 + 40 or 40 + 40: differences +10, 0, -10, so the interval is [-10, +10]
+    assert d["diff"] == pytest.approx(0.0)
+    assert (d["diff_low"], d["diff_high"]) == pytest.approx((-10.0, 10.0))
+
+
+def test_the_common_routes_table_keeps_the_routes_every_run_completed(tmp_path):
+    a = _run(tmp_path / "a", [("0_rep0", 80.0, 0, 0.3, 1.0), ("1_rep0", 10.0, 0, 0.1, 9.0, "Failed - Agent timed out"),
+                              ("2_rep0", 60.0, 1, 0.3, 2.0)])
+    b = _run(tmp_path / "b", [("0_rep0", 90.0, 0, 0.3, 1.0), ("1_rep0", 70.0, 0, 0.3, 1.0),
+                              ("2_rep0", 50.0, 0, 0.3, 2.0, "Perfect")])
+    assert completed_keys([route_rows(a), route_rows(b)]) == ["0_rep0", "2_rep0"]
+    write_report({"a": [a], "b": [b]}, tmp_path / "t", n_boot=100)
+    every = {r["arm"]: r for r in csv.DictReader(open(tmp_path / "t" / "table3.csv"))}
+    common = {r["arm"]: r for r in csv.DictReader(open(tmp_path / "t" / "table3_common.csv"))}
+    assert float(every["a"]["DS"]) == pytest.approx(50.0)  # (80 + 10 + 60) / 3
+    assert float(common["a"]["DS"]) == pytest.approx(70.0)  # (80 + 60) / 2
+    assert float(common["b"]["DS diff"]) == pytest.approx(0.0)  # (90 + 50) / 2 - 70
+    assert float(common["a"]["Collision/km"]) == pytest.approx(1 / 0.6)
+    assert common["a"]["DS routes"] == "2"
+    assert "the 2 routes every run completed" in (tmp_path / "t" / "table3_common.md").read_text()
+
+
+def test_a_metric_undefined_in_one_run_leaves_that_route_out_for_every_arm(tmp_path):
+    a = _run(tmp_path / "a", [("0_rep0", 50.0, 0, 0.3, 2.0), ("1_rep0", 50.0, 0, 0.3, 4.0)])
+    b = _run(tmp_path / "b", [("0_rep0", 50.0, 0, 0.3, float("nan")), ("1_rep0", 50.0, 0, 0.3, 6.0)])
+    res = compare({"a": [route_rows(a)], "b": [route_rows(b)]}, [("steering_jerk_moving", "")], n_boot=50)
+    assert res["a"]["steering_jerk_moving"]["value"] == 4.0  # route 1 only, not (2 + 4) / 2
+    assert res["b"]["steering_jerk_moving"]["diff"] == 2.0
+    assert res["b"]["steering_jerk_moving"]["routes"] == 1
+
+
+def test_arms_are_named_folders_or_name_equals_folders():
+    arms = parse_arms(["runs/b0", "scimm=runs/s0,runs/s1", "runs/x/b0"])
+    assert arms == {"b0": [Path("runs/b0")], "scimm": [Path("runs/s0"), Path("runs/s1")], "b0'": [Path("runs/x/b0")]}
+    with pytest.raises(ReportError, match="NAME=DIR"):
+        parse_arms(["scimm=runs/s0,"])
+    with pytest.raises(ReportError, match="NAME=DIR"):
+        parse_arms(["=runs/s0"])
+
+
+def test_records_without_the_new_columns_get_them_from_the_logs(tmp_path):
+    old = ["key", "status", "ds", "rc", "is", "collisions_layout", "collisions_pedestrian", "collisions_vehicle",
+           "km_driven", "steering_jerk", "longitudinal_jerk", "curvature_variation", "speed_variation"]
+    run = _run(tmp_path / "old", [("0_rep0", 50.0, 0, 0.3, 1.0)], columns=old)
+    (run / "logs").mkdir()
+    log = {"v": np.array([0.0, 1.0, 1.0, 1.0]), "steer": np.array([0.0, 0.1, 0.0, 0.0]),
+           "throttle": np.full(4, 0.5), "brake": np.zeros(4), "pred_path": np.zeros((4, 20, 2), np.float32),
+           "pred_speed_wps": np.zeros((4, 10, 2), np.float32)}
+    np.savez_compressed(run / "logs" / "0_rep0.npz", **log)
+    rows = route_rows(run)
+    # moving ticks 2 and 3: |0 - 0.2 + 0| and |0 - 0 + 0.1| -> 0.15 / dt^2 = 60
+    assert rows["0_rep0"]["steering_jerk_moving"] == pytest.approx(60.0)
+    assert rows["0_rep0"]["steering_jerk"] == 1.0  # a column the records have is read, not recomputed
+    assert rows["0_rep0"]["standing_share"] == stability(log)["standing_share"] == 0.25
+    (run / "logs" / "0_rep0.npz").unlink()
+    with pytest.raises(ReportError, match="evaluate the run again"):
+        route_rows(run)
 
 
 def test_small_figures_keep_their_significant_digits():
     assert fig(0.000312345) == "0.0003123"
     assert fig(54.9712) == "54.97"
-    assert fig(100.0) == "100"

@@ -1,5 +1,5 @@
-"""``sumo-scimm reproduce`` end to end on the four town12_smoke routes (collect, both
-teachers, three students for one epoch, three closed-loop evaluations in real libsumo,
+"""``sumo-scimm reproduce`` end to end on the four town12_smoke routes (collect, the three
+teachers, four students for one epoch, four closed-loop evaluations in real libsumo,
 Tables 2-4 and the figures), its resume, and its refusals of bad input."""
 from __future__ import annotations
 
@@ -19,14 +19,14 @@ def test_reproduce_runs_every_stage_and_resumes_without_redoing_them(tmp_path, c
     argv = ["reproduce", "--seeds", "1", "--workers", "2", "--epochs", "1", "--out", str(out), *SMOKE]
     assert main(argv) == 0
     stages = json.loads((out / "stages.json").read_text())
-    for arm in ("baseline", "fixed", "scimm"):
+    for arm in ("baseline", "fixed", "scimm", "smoother"):
         assert f"train {arm} s0" in stages
         assert f"eval {arm} s0" in stages
         assert (out / "models" / f"{arm}_s0" / "student.pt").is_file()
         with open(out / "runs" / f"{arm}_s0" / "records.csv", newline="") as f:
             assert len(list(csv.DictReader(f))) == 4  # one record per smoke route
     rows = list(csv.DictReader(open(out / "tables" / "table3.csv")))
-    assert [r["arm"] for r in rows] == ["baseline", "fixed", "scimm"]
+    assert [r["arm"] for r in rows] == ["baseline", "fixed", "scimm", "smoother"]
     assert rows[0]["DS change %"] in ("0.0", "nan")
     assert (out / "tables" / "table4.md").is_file()
     assert (out / "tables" / "table2.csv").is_file()

@@ -193,7 +193,8 @@ def test_summary_does_not_depend_on_the_order_routes_finished_in():
     records = [{"route_id": str(i), "repetition": 0, "ds": float(rng.uniform(0, 100)),
                 "rc": float(rng.uniform(50, 100)), "is": float(rng.uniform(0, 1)),
                 "collisions_layout": 0, "collisions_pedestrian": int(i % 7 == 0), "collisions_vehicle": int(i % 5 == 0),
-                "km_driven": float(rng.uniform(0.1, 1.0)), **{k: float(rng.uniform(0, 10)) for k in STABILITY}}
+                "km_driven": float(rng.uniform(0.1, 1.0)), **{k: float(rng.uniform(0, 10)) for k in STABILITY},
+                "lb": {"status": "Completed" if i % 3 else "Failed", "infractions": inf()}}
                for i in range(40)]
     result = {"_checkpoint": {"global_record": {"infractions": {}}}}
     in_order = summary_rows(records, result)
@@ -201,3 +202,19 @@ def test_summary_does_not_depend_on_the_order_routes_finished_in():
     assert summary_rows(shuffled, result) == in_order
     assert summary_rows(records[::-1], result) == in_order
     assert in_order[0]["ci95_low"] < in_order[0]["value"] < in_order[0]["ci95_high"]
+
+
+def test_summary_has_bench2drives_success_rate():
+    """Success: Completed / Perfect with no infraction but minimum speed (Bench2Drive's
+    merge_route_json.py): two of these four route runs, 50 %."""
+    from harness.scoring.outputs import summary_rows
+    from harness.scoring.records import STABILITY
+
+    def rec(status, **lists):
+        return {"route_id": "0", "repetition": 0, "ds": 50.0, "rc": 50.0, "is": 1.0, "collisions_layout": 0,
+                "collisions_pedestrian": 0, "collisions_vehicle": 0, "km_driven": 0.1,
+                **dict.fromkeys(STABILITY, 0.0), "lb": {"status": status, "infractions": inf(**lists)}}
+    records = [rec("Perfect"), rec("Completed", min_speed_infractions=[speed(40.0)]),
+               rec("Completed", outside_route_lanes=[outside(0.5, 0.01)]), rec("Failed - Agent got blocked")]
+    rows = {r["metric"]: r for r in summary_rows(records, {"_checkpoint": {"global_record": {}}})}
+    assert rows["success_rate"]["value"] == 50.0

@@ -5,6 +5,9 @@ Every file goes to ``NAME.tmp...`` and is renamed over NAME; ``signals_held`` ho
 SIGINT or SIGTERM that arrives meanwhile and delivers it just after, so a stop never leaves
 a half-written temporary file, nor (in the parent) a record in records.jsonl that
 records.csv and results.json lack.
+
+A write that fails (a full disk, a read-only or forbidden folder) removes its temporary
+file and raises OSError naming the file meant (``path``), not the temporary one.
 """
 from __future__ import annotations
 
@@ -42,17 +45,25 @@ def signals_held():
 def savez_atomic(path: Path, /, **arrays) -> None:
     """``np.savez_compressed`` to ``path`` via ``path.tmp.npz``, with stops held (``path``
     is positional-only: an array may be called "path")."""
+    path = Path(path)
     tmp = path.with_name(path.name + ".tmp.npz")
     with signals_held():
-        np.savez_compressed(tmp, **arrays)
-        os.replace(tmp, path)
+        try:
+            np.savez_compressed(tmp, **arrays)
+            os.replace(tmp, path)
+        except OSError as exc:
+            _remove(tmp)
+            raise _naming(exc, path) from exc
+        except BaseException:
+            _remove(tmp)
+            raise
 
 
 def write_atomic(path: Path, content: str | bytes | Callable[[Path], None]) -> None:
     """Write ``path`` whole or not at all: ``content`` (text, bytes, or a function that
     writes the file it is given) goes to ``path.tmp``, which is renamed over ``path`` with
     stops held. A write that fails (a full disk, a folder in the way) removes the
-    temporary file and raises."""
+    temporary file and raises (an OSError naming ``path``)."""
     path = Path(path)
     tmp = path.with_name(path.name + ".tmp")
     with signals_held():
@@ -64,7 +75,24 @@ def write_atomic(path: Path, content: str | bytes | Callable[[Path], None]) -> N
             else:
                 content(tmp)
             os.replace(tmp, path)
+        except OSError as exc:
+            _remove(tmp)
+            raise _naming(exc, path) from exc
         except BaseException:
-            if tmp.is_file():
-                tmp.unlink()
+            _remove(tmp)
             raise
+
+
+def _remove(tmp: Path) -> None:
+    """Remove a temporary file (or whatever link stands at its name); a folder in the way stays."""
+    try:
+        os.unlink(tmp)
+    except OSError:
+        pass
+
+
+def _naming(exc: OSError, path: Path) -> OSError:
+    """``exc`` as an OSError of the same kind naming ``path`` (the file meant)."""
+    if exc.errno is None:
+        return OSError(f"{exc}: {path}")
+    return OSError(exc.errno, exc.strerror or os.strerror(exc.errno), str(path))

@@ -8,7 +8,9 @@ contacts and route-ending criteria are evaluated, and everything goes into the l
 An exception in the agent, a Control with NaN/inf, or a ``run_step`` that takes longer
 than the per-step deadline (``agent_timeout``, wall clock, default AGENT_TIMEOUT) ends the
 route as "Failed - Agent crashed", as the Leaderboard's agent watchdog does; the log up to
-that tick is kept.
+that tick is kept. That includes what an agent raises that is not an Exception
+(SystemExit, KeyboardInterrupt, GeneratorExit); only the user's own Ctrl-C or SIGTERM
+(harness.common.stops) goes on to stop the run.
 """
 from __future__ import annotations
 
@@ -21,9 +23,11 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from controller.vehicle import DT, LENGTH, WIDTH, Control, EgoState, EgoVehicle
+from harness.common.stops import is_stop, watch_stops
 from harness.scoring import criteria
 from harness.scoring.statuses import FAILED_AGENT, FAILED_SETUP, FAILED_SIMULATION
 from harness.loop.agent import Prediction, load_agent, split_output, validate_sensors
+from harness.loop.scene_log import SceneLog
 from harness.sim.contacts import overlaps
 from harness.sim.hazards import make_hazard
 from harness.sim.plan import GlobalPlan, build_plan, to_ego
@@ -50,6 +54,7 @@ class EpisodeLog:
     contacts: list[tuple[int, str, int]] = field(default_factory=list)  # (tick, actor id, class)
     path: list[np.ndarray] = field(default_factory=list)  # predicted path per tick (20, 2) or nan
     speed_wps: list[np.ndarray] = field(default_factory=list)  # predicted speed wps (10, 2) or nan
+    scene: SceneLog = field(default_factory=SceneLog)  # what the agent saw each tick (for replay)
 
     def arrays(self) -> dict[str, np.ndarray]:
         out = {k: np.asarray(v, dtype=float) for k, v in self.columns.items()}
@@ -60,6 +65,7 @@ class EpisodeLog:
         out["contact_class"] = np.array([c[2] for c in self.contacts], dtype=np.int8)
         out["pred_path"] = np.asarray(self.path, dtype=np.float32).reshape(-1, 20, 2)
         out["pred_speed_wps"] = np.asarray(self.speed_wps, dtype=np.float32).reshape(-1, 10, 2)
+        out.update(self.scene.arrays())
         return out
 
 
@@ -141,10 +147,12 @@ def run_episode(route: Route, agent_name: str, agent_config: str | None, seed: i
         message += "\n" + traceback.format_exc(limit=4)
     finally:
         if run.agent is not None:
+            stops = watch_stops()
             try:
                 run.agent.destroy()
-            except Exception:  # noqa: BLE001 - destroy errors must not hide the route result
-                pass
+            except BaseException as exc:  # noqa: BLE001 - destroy errors must not hide the route result
+                if is_stop(exc, stops):
+                    raise
         world.close()
     return EpisodeResult(status, float(rc), round(run.tick * DT, 3), wallclock.perf_counter() - wall0,
                          run.tick, message, run.log, plan.length, plan, run.loop_time)
@@ -181,7 +189,7 @@ def _drive(run: _Run, route: Route, net, plan: GlobalPlan, world: World, rngs: t
     props = scene.props
     prop_boxes = np.array(props, dtype=float).reshape(-1, 5)  # (P, 5) x, y, yaw, length, width
     end = None
-    alarm = _deadline_alarm()
+    alarm, stops = _deadline_alarm(), watch_stops()
     loop0 = wallclock.perf_counter()
     lights_now = world.light_states(lights)
     while end is None:
@@ -191,9 +199,12 @@ def _drive(run: _Run, route: Route, net, plan: GlobalPlan, world: World, rngs: t
             inputs = sensor_inputs(specs, s, plan, progress, snap, (snap, lights_now, props),
                                    lambda: bev.render(s, snap, plan, lights_now, props))
             control, pred = _agent_step(run.agent, inputs, world.time, agent_timeout, alarm)
-        except Exception as exc:  # noqa: BLE001 - an agent failure ends this route only
+        except BaseException as exc:  # noqa: BLE001 - an agent failure ends this route only
+            if is_stop(exc, stops):  # the user's Ctrl-C or SIGTERM, not the agent's
+                raise
             run.loop_time = wallclock.perf_counter() - loop0
             return FAILED_AGENT, f"{type(exc).__name__}: {exc}", ends.done.rc
+        run.log.scene.add(world.time, s, progress, snap, lights_now, prop_boxes)  # the scene the agent saw
         s = ego.step(control)
         ego_s = float(plan.s[progress])
         scene.advance(s, ego_s)
@@ -213,13 +224,16 @@ def _drive(run: _Run, route: Route, net, plan: GlobalPlan, world: World, rngs: t
 def _setup_agent(run: _Run, agent_name: str, agent_config: str | None, plan: GlobalPlan) -> list[dict]:
     """Load the agent into ``run``, give it the plan, set it up; returns its validated
     sensor specs. Any failure raises _AgentSetupError."""
+    stops = watch_stops()
     try:
         run.agent = load_agent(agent_name)
         run.agent.set_global_plan(plan)
         run.agent.setup(agent_config)
         specs = run.agent.sensors()
         validate_sensors(specs)
-    except Exception as exc:  # noqa: BLE001 - any agent failure is recorded, the run goes on
+    except BaseException as exc:  # noqa: BLE001 - any agent failure is recorded, the run goes on
+        if is_stop(exc, stops):
+            raise
         raise _AgentSetupError(f"{type(exc).__name__}: {exc}") from exc
     return specs
 

@@ -4,6 +4,8 @@ A ``Job`` is what a worker (a local process or a Ray task) gets; ``run_job`` dri
 route, saves its per-tick log (``logs/<route>_rep<k>.npz``), detects the infractions and
 returns the route's record (columns in harness.scoring.records). ``run_job_safely`` turns a
 harness error into the route's "Failed - Simulation crashed" record, so the run goes on.
+Under ``--rules b2d`` it also writes Bench2Drive's ``metric_info.json`` of the route into
+``b2d/<save_name>/`` beside the logs folder (harness.scoring.bench2drive).
 """
 from __future__ import annotations
 
@@ -18,10 +20,11 @@ import numpy as np
 
 from harness.common.atomic import savez_atomic
 from harness.loop.episode import AGENT_TIMEOUT
+from harness.scoring.bench2drive import record_keys
 from harness.scoring.infractions import KEYS
 from harness.scoring.records import COUNT_KEYS, STABILITY
 from harness.scoring.scores import outside_lanes, route_record
-from harness.scoring.statuses import FAILED_SIMULATION, crash_message
+from harness.scoring.statuses import COMPLETED, FAILED_SIMULATION, crash_message
 from scenarios.routefile import Route
 
 @dataclass(frozen=True)
@@ -48,12 +51,32 @@ def route_seed(run_seed: int, index: int) -> int:
     return int(np.random.SeedSequence([run_seed, index]).generate_state(1)[0])
 
 
+B2D_DIR = "b2d"  # Bench2Drive's metric_info folders, beside the logs folder
+
+
+def b2d_dir(job: Job) -> Path:
+    """The folder of a job's Bench2Drive metric_info files: ``b2d`` beside its logs folder."""
+    return Path(job.log_dir).parent / B2D_DIR
+
+
+def b2d_keys(job: Job) -> dict:
+    """Bench2Drive's record keys of a job (its route's first hazard is the scenario)."""
+    first = job.route.hazards[0].name if job.route.hazards else None
+    return record_keys(job.route.id, job.repetition, job.route.town, first)
+
+
 def make_record(job: Job, status: str, rc: float, length: float, game_time: float, wall_time: float,
-                steps: int, message: str, infractions: dict, stab: dict, rules: str) -> dict:
-    """One line of records.jsonl: the Leaderboard record (``lb``) and flat columns."""
-    lb = route_record(job.index, f"RouteScenario_{job.route.id}_rep{job.repetition}", infractions, rc,
+                steps: int, message: str, infractions: dict, stab: dict, rules: str, *,
+                outside_pct: float | None = None, efficiency: float | None = None,
+                smoothness: float | None = None) -> dict:
+    """One line of records.jsonl: the Leaderboard record (``lb``; with Bench2Drive's keys
+    under b2d rules) and flat columns, among them the route's first hazard type and its
+    Bench2Drive efficiency [%] and smoothness [0, 1] (None where undefined).
+    ``outside_pct``: the unrounded outside-lanes percentage, which the penalty uses."""
+    lb = route_record(job.index, f"RouteScenario_{job.route.id}_rep{job.repetition}", infractions,
+                      100 if status == COMPLETED else rc,  # the leaderboard's completed RC is the int 100
                       {"route_length": length, "duration_game": game_time, "duration_system": wall_time},
-                      rules, crash_message(status))
+                      rules, crash_message(status), outside_pct, b2d_keys(job) if rules == "b2d" else None)
     sc = lb["scores"]
     km = length / 1000 * sc["score_route"] / 100
     n_coll = sum(len(lb["infractions"][k]) for k in ("collisions_layout", "collisions_pedestrian",
@@ -61,19 +84,24 @@ def make_record(job: Job, status: str, rc: float, length: float, game_time: floa
     out_pct = (outside_lanes(lb["infractions"]["outside_route_lanes"][0])[1]
                if lb["infractions"]["outside_route_lanes"] else 0.0)
     return {"key": job.key, "route_id": job.route.id, "repetition": job.repetition, "town": job.route.town,
-            "status": lb["status"], "ds": sc["score_composed"], "rc": sc["score_route"], "is": sc["score_penalty"],
+            "status": lb["status"], "ds": sc["score_composed"], "rc": float(sc["score_route"]),
+            "is": sc["score_penalty"],
             **{k: len(lb["infractions"][k]) for k in COUNT_KEYS}, "outside_lanes_pct": out_pct,
             "collisions_per_km": round(n_coll / km, 3) if km > 0 else float("nan"),
             "km_driven": round(km, 6), "length": round(length, 3), "game_time": round(game_time, 3),
             "wall_time": round(wall_time, 3), "steps": steps, **{k: stab.get(k, float("nan")) for k in STABILITY},
-            "seed": job.seed, "message": message, "episode_status": status, "lb": lb}
+            "seed": job.seed, "message": message, "episode_status": status,
+            "hazard": job.route.hazards[0].type if job.route.hazards else "", "efficiency": efficiency,
+            "smoothness": smoothness, "lb": lb}
 
 
 def run_job(job: Job) -> dict:
     """Drive one route, save its log, detect infractions; returns the route record (in a worker)."""
     from harness.loop.episode import run_episode
-    from harness.scoring.infractions import detect
+    from harness.scoring.bench2drive import metric_info, route_efficiency, route_smoothness, write_metric_info
+    from harness.scoring.infractions import detect, min_speed
     from harness.scoring.stability import stability
+    from harness.scoring.statuses import ended_by_criterion
     from sumo_nets import load_net
     recorder = None
     if job.collect_dir:
@@ -83,12 +111,21 @@ def run_job(job: Job) -> dict:
                       on_frame=recorder.on_frame if recorder else None, agent_timeout=job.agent_timeout)
     arrays = res.log.arrays()
     savez_atomic(Path(job.log_dir) / f"{job.key}.npz", **arrays)
+    values: dict = {}
+    infractions, speed = {k: [] for k in KEYS}, []
     if res.plan is not None:
-        infractions = detect(arrays, res.plan, job.route, load_net(job.route.town), res.status, job.rules)
-    else:
-        infractions = {k: [] for k in KEYS}
+        infractions = detect(arrays, res.plan, job.route, load_net(job.route.town), res.status, job.rules, values)
+        if job.rules == "b2d":  # Bench2Drive's checkpoints, every one logged: its efficiency's input
+            speed = infractions["min_speed_infractions"]
+        elif len(arrays["t"]):
+            speed = min_speed(arrays, res.plan, "b2d", ended_by_criterion(res.status))
+    info = metric_info(arrays)
+    if job.rules == "b2d":
+        write_metric_info(b2d_dir(job) / b2d_keys(job)["save_name"] / "metric_info.json", info)
     record = make_record(job, res.status, res.rc, res.length, res.game_time, res.wall_time, res.steps,
-                         res.message, infractions, stability(arrays), job.rules)
+                         res.message, infractions, stability(arrays), job.rules,
+                         outside_pct=values.get("outside_route_lanes"), efficiency=route_efficiency(speed),
+                         smoothness=route_smoothness(info))
     if recorder is not None:
         from harness.expert.collect import save_episode
         save_episode(Path(job.collect_dir) / f"{job.key}.npz", recorder.arrays(), job.route_file,
@@ -103,9 +140,13 @@ def crash_record(job: Job, reason: str) -> dict:
 
 
 def run_job_safely(job: Job) -> dict:
-    """run_job, with a harness error turned into the route's crash record (the run goes on)."""
+    """run_job, with a harness error turned into the route's crash record (the run goes on).
+    An OSError (a log that cannot be written, a net that cannot be read) is no driving
+    result: it propagates, and the run stops (harness.runs.runner)."""
     try:
         return run_job(job)
+    except OSError:
+        raise
     except Exception as exc:  # noqa: BLE001 - a harness bug fails this route, not the run
         return crash_record(job, f"{type(exc).__name__}: {exc}")
 

@@ -2,7 +2,7 @@
 
 ``software()`` names the code of the stages (a digest of their Python sources, route sets,
 nets and shipped checkpoints), the Python version and the versions of the libraries that
-run inside the closed loop. ``run.json`` keeps it beside the route runs, with a digest of
+run inside the closed loop. ``run.jsonc`` (RUN_FILE) keeps it beside the route runs, with a digest of
 each agent's config file and, for an agent given as ``module:Class``, of its module file;
 ``--resume`` refuses to add records to a folder started with other software (harness.runs.runner),
 so the records of one run never mix two versions of the experiment: a new commit, another
@@ -28,6 +28,10 @@ from pathlib import Path
 
 from harness.common.errors import BadInput
 
+# what the run is, in its folder; not named *.json, so that a tool reading every *.json of a
+# folder as a results file (Bench2Drive's merge_route_json.py) reads results.json alone
+RUN_FILE = "run.jsonc"
+OLD_RUN_FILE = "run.json"  # its name in run folders made before
 # the stages (SPEC §1) and the files in them that can change a record
 PACKAGES = ("scenarios", "sumo_nets", "controller", "harness", "scimm", "model", "sumo_scimm")
 SUFFIXES = (".py", ".xml", ".pt")
@@ -118,9 +122,16 @@ def run_identity(jobs) -> dict:
     return {"software": software(), "route_runs": runs}
 
 
+def run_file(out: Path) -> Path:
+    """The file saying what the run in folder ``out`` is: RUN_FILE, or OLD_RUN_FILE in a
+    folder that has only that."""
+    new, old = out / RUN_FILE, out / OLD_RUN_FILE
+    return old if not new.exists() and old.exists() else new
+
+
 def check_same_run(out: Path, identity: dict, done: list[dict], adding: bool) -> None:
     """BadInput unless the run being resumed in ``out`` is the one described by ``identity``:
-    the same route runs (its run.json; a folder from before run.json: every record one of
+    the same route runs (its run.jsonc, or run.json; a folder from before either: every record one of
     them, with its seed) and, if it holds records and route runs are left (``adding``), the
     same software. A finished run may be scored again by other software (no record is added
     to it), and a run without a record yet may start again with it (none would mix)."""
@@ -129,7 +140,7 @@ def check_same_run(out: Path, identity: dict, done: list[dict], adding: bool) ->
     unknown = (f"{out} was started by a sumo-scimm that did not record its software, so its records may "
                f"come from other code: {afresh}")
     mixing = adding and bool(done)
-    path = out / "run.json"
+    path = run_file(out)
     if not path.exists():
         if mixing:
             raise BadInput(unknown)
@@ -151,7 +162,7 @@ def check_same_run(out: Path, identity: dict, done: list[dict], adding: bool) ->
             raise BadInput(f"{out} was started with other software ({_difference(old['software'], identity['software'])}); "
                            f"its records would mix two versions: resume with the software it was started with, or {afresh}")
         old_runs = old.get("route_runs")
-    else:  # an older run.json: the route runs alone, without their configs' digests
+    else:  # an older layout: the route runs alone, without their configs' digests
         if mixing:
             raise BadInput(unknown)
         old_runs = old

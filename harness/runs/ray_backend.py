@@ -9,9 +9,11 @@ for Ray Client) and only disconnects at the end.
   libsumo state is ever shared between routes; it asks for 1 CPU.
 - Same records as the local backend: the task runs ``harness.runs.jobs.run_job`` on the same
   Job (same seed); a task that raises is the route's "Failed - Simulation crashed" record,
-  and so is a worker that dies (``max_retries=0``: never retried, as a dead local worker).
+  and so is a worker that dies (``max_retries=0``: never retried, as a dead local worker),
+  but a task that cannot write its files (an OSError) stops the run, as a local worker does.
 - Results land on the driver: the task writes its episode log (and, for ``collect``, its
-  dataset episode) into a temporary folder of its node and returns the bytes; the driver
+  dataset episode; under b2d rules, its metric_info.json) into a temporary folder of its
+  node and returns the bytes; the driver
   writes them under the run folder, so a cluster needs no shared file system.
 - At most ``workers`` tasks are in flight (default: every CPU of the cluster); records
   stream back in completion order through the runner's ``emit``.
@@ -32,9 +34,9 @@ import tempfile
 from pathlib import Path
 
 from harness.common.atomic import write_atomic
-from harness.runs.jobs import Job, crash_record, run_job_safely, worker_stats
+from harness.runs.jobs import Job, b2d_dir, crash_record, run_job_safely, worker_stats
 
-OUTPUT_KINDS = ("logs", "episodes")  # folders of a task's files: Job.log_dir, Job.collect_dir
+OUTPUT_KINDS = ("logs", "episodes", "b2d")  # folders of a task's files: Job.log_dir, Job.collect_dir, b2d_dir
 CONNECT_TIMEOUT = 10.0  # s to reach the head node's port before ray.init (which would hang)
 
 
@@ -116,14 +118,14 @@ def _run_task(job: Job) -> tuple[dict, dict, dict[str, bytes]]:
         here = dataclasses.replace(job, log_dir=str(folders["logs"]),
                                    collect_dir=str(folders["episodes"]) if job.collect_dir else "")
         rec = run_job_safely(here)
-        files = {f"{kind}/{p.name}": p.read_bytes() for kind, d in folders.items()
-                 for p in sorted(d.iterdir()) if not p.name.endswith(".tmp.npz")}
+        files = {f"{kind}/{p.relative_to(d).as_posix()}": p.read_bytes() for kind, d in folders.items()
+                 for p in sorted(d.rglob("*")) if p.is_file() and not p.name.endswith(".tmp.npz")}
     return rec, {**worker_stats(1), "node": _ray().get_runtime_context().get_node_id()}, files
 
 
 def _write_files(job: Job, files: dict[str, bytes]) -> None:
     """Write a task's files under the job's folders (atomically, as the local backend does)."""
-    folders = {"logs": job.log_dir, "episodes": job.collect_dir}
+    folders = {"logs": job.log_dir, "episodes": job.collect_dir, "b2d": str(b2d_dir(job))}
     for name, data in files.items():
         kind, base = name.split("/", 1)
         path = Path(folders[kind]) / base
@@ -171,6 +173,8 @@ class RayPool:
                     try:
                         rec, stats, files = ray.get(ref)
                     except ray.exceptions.RayError as exc:
+                        if isinstance(getattr(exc, "cause", None), OSError):  # its files: stops the run
+                            raise exc.cause from None
                         reason = str(exc).strip().splitlines()[0] if str(exc).strip() else ""
                         emit(job, crash_record(job, f"worker process died ({type(exc).__name__}: {reason})"), None)
                         continue

@@ -8,20 +8,31 @@ Outputs in the run folder:
                     run, and its resident memory after this one [MB] (the soak figure)
     logs/<route>_rep<k>.npz   the per-tick event log of that run (harness.loop.episode.EpisodeLog)
 
-    run.json        what the run is (the software, harness.runs.provenance; every route run's
+    run.jsonc       what the run is (the software, harness.runs.provenance; every route run's
                     key, seed, route, agent, agent config and its digest, rules, step
                     deadline), written when it starts (a finished run scored again by
-                    ``resume`` keeps the one it has)
+                    ``resume`` keeps the one it has); not named *.json, so Bench2Drive's
+                    merge_route_json.py, which reads every *.json of a folder, reads only
+                    results.json (a folder's older ``run.json`` is renamed by ``resume``)
+    b2d/<save_name>/metric_info.json   under ``--rules b2d``: Bench2Drive's per-tick ego
+                    state of that run (harness.scoring.bench2drive)
+    results.json    the Leaderboard results file (``--checkpoint``): while routes are left,
+                    "Started" without a global record, as the leaderboard writes it
 
 Every route run gets its own seed, derived from the run seed, the route's place in its set
 and the repetition (sumo_scimm.cli), so records do not depend on the number of workers or the
 backend. A worker that dies (kill -9, segfault) has its route recorded as "Failed -
 Simulation crashed" with the reason; a new worker takes over and the run goes on.
 ``resume`` keeps the complete records already in ``records.jsonl`` and runs only the rest
-(a torn last line is dropped and redone); it refuses (BadInput) a folder whose run.json
+(a torn last line is dropped and redone); it refuses (BadInput) a folder whose run.jsonc
 differs from the resumed run's (other options, another checkpoint; other software when
 records would be added), or whose records are not route runs of it, so a run's scores
 never mix records of two runs.
+
+An output that cannot be written (a full disk, a read-only or forbidden folder) stops the
+run with an OSError naming the file, wherever it happens (a worker writing a route's log,
+the parent appending a record): it is never a route's record, so the route runs again
+when the run is resumed. A record line cut short by a full disk is removed again.
 
 Backends: ``local`` (spawned worker processes, each running routes one after another) and
 ``ray`` (harness.runs.ray_backend: each route a Ray task in a fresh process); both stream the
@@ -41,7 +52,7 @@ from tqdm import tqdm
 
 from harness.common.atomic import signals_held, write_atomic
 from harness.runs.jobs import Job, crash_record, release_freed_memory, run_job_safely, worker_stats
-from harness.runs.provenance import check_same_run, run_identity
+from harness.runs.provenance import OLD_RUN_FILE, RUN_FILE, check_same_run, run_identity
 
 
 def _worker(conn) -> None:
@@ -54,13 +65,49 @@ def _worker(conn) -> None:
             return
         if job is None:
             return
-        rec = run_job_safely(job)
+        try:
+            rec = run_job_safely(job)
+        except OSError as exc:  # an output it cannot write stops the run: tell the parent
+            try:
+                conn.send((_portable(exc), None))
+            except OSError:
+                pass
+            return
         routes_run += 1
         release_freed_memory()  # before the memory sample: what the worker holds, not its peak
         try:
             conn.send((rec, worker_stats(routes_run)))
         except OSError:  # the parent is gone (killed): nobody to report to
             return
+
+
+def _portable(exc: OSError) -> OSError:
+    """A plain OSError of the same kind, path and text (any OSError subclass pickles so)."""
+    if exc.errno is None:
+        return OSError(str(exc))
+    return OSError(exc.errno, exc.strerror or os.strerror(exc.errno), exc.filename)
+
+
+def _append(f, line: str, path: Path, sync: bool = False) -> None:
+    """Append ``line`` to the unbuffered binary file ``f`` (of ``path``), whole or not at
+    all: if a write fails (a full disk), what it wrote is cut off again and the OSError
+    names ``path``. ``sync``: fsync'ed before returning."""
+    data = memoryview(line.encode())
+    start = os.fstat(f.fileno()).st_size
+    try:
+        done = 0
+        while done < len(data):
+            done += f.write(data[done:])
+        if sync:
+            os.fsync(f.fileno())
+    except OSError as exc:
+        try:
+            os.ftruncate(f.fileno(), start)
+        except OSError:
+            pass
+        if exc.errno is None:
+            raise
+        raise OSError(exc.errno, exc.strerror or os.strerror(exc.errno), str(path)) from exc
 
 
 def read_records(path: Path) -> list[dict]:
@@ -122,6 +169,8 @@ def _run_local(jobs: list[Job], workers: int, emit) -> None:
                         rec, stats = conn.recv()
                     except (EOFError, OSError):
                         rec = None
+                    if isinstance(rec, OSError):  # the worker could not write its route's files
+                        raise rec
                     if rec is not None:
                         emit(job, rec, stats)
                         slots[conn] = (p, None)
@@ -165,8 +214,13 @@ def run_eval(jobs: list[Job], out: Path, workers: int | None, resume: bool, show
         for d in dirs or {str(out / "logs")}:
             Path(d).mkdir(parents=True, exist_ok=True)
         rec_path, workers_path = out / "records.jsonl", out / "workers.jsonl"
-        if adding:  # a finished run scored again keeps the run.json of the software that made it
-            write_atomic(out / "run.json", json.dumps(identity, indent=1) + "\n")
+        old = out / OLD_RUN_FILE  # a folder of an older sumo-scimm: the file under its new name
+        if old.is_file() and not (out / RUN_FILE).exists() and not adding:
+            os.replace(old, out / RUN_FILE)
+        if adding:  # a finished run scored again keeps the run.jsonc of the software that made it
+            write_atomic(out / RUN_FILE, json.dumps(identity, indent=1) + "\n")
+        if old.is_file():
+            old.unlink()
         done = _keep_complete_lines(rec_path, resume)
         _keep_complete_lines(workers_path, resume)
         have = {r["key"] for r in done}
@@ -174,16 +228,13 @@ def run_eval(jobs: list[Job], out: Path, workers: int | None, resume: bool, show
         records = list(done)
         bar = tqdm(total=len(jobs), initial=len(jobs) - len(todo), desc="eval", unit="route",
                    disable=not show_progress or None)
-        with open(rec_path, "a") as f, open(workers_path, "a") as wf:
+        with open(rec_path, "ab", buffering=0) as f, open(workers_path, "ab", buffering=0) as wf:
             def emit(job: Job, rec: dict, stats: dict | None) -> None:
                 with signals_held():  # the route's lines and the rewritten tables, all or none
-                    f.write(json.dumps(rec) + "\n")
-                    f.flush()
-                    os.fsync(f.fileno())
+                    _append(f, json.dumps(rec) + "\n", rec_path, sync=True)
                     records.append(rec)
                     if stats is not None:
-                        wf.write(json.dumps({"key": job.key, **stats}) + "\n")
-                        wf.flush()
+                        _append(wf, json.dumps({"key": job.key, **stats}) + "\n", workers_path)
                     write_outputs(records, len(jobs), out, checkpoint, sensors, finished=False, summary=False)
                 bar.update(1)
 

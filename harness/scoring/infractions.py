@@ -144,7 +144,9 @@ def stop_signs(log: dict, plan: GlobalPlan) -> list[str]:
     return out
 
 
-def outside_lanes(log: dict, plan: GlobalPlan, lanes: LaneIndex, spans) -> list[str]:
+def outside_lanes(log: dict, plan: GlobalPlan, lanes: LaneIndex, spans, values: dict | None = None) -> list[str]:
+    """The outside-lanes message; ``values`` (if given) gets the unrounded percentage under
+    "outside_route_lanes" (the leaderboard's event value, which its penalty uses)."""
     xy = np.stack([log["x"], log["y"]], 1)
     if len(xy) == 0:
         return []
@@ -169,8 +171,11 @@ def outside_lanes(log: dict, plan: GlobalPlan, lanes: LaneIndex, spans) -> list[
                 i = j
     if bad <= 0:
         return []
+    percentage = bad / total * 100  # in the leaderboard's order of operations
+    if values is not None:
+        values["outside_route_lanes"] = percentage
     return [f"Agent went outside its route lanes for about {round(bad, 3)} meters "
-            f"({round(100 * bad / total, 2)}% of the completed route)"]
+            f"({round(percentage, 2)}% of the completed route)"]
 
 
 def min_speed(log: dict, plan: GlobalPlan, rules: str, ended_normally: bool) -> list[str]:
@@ -220,8 +225,10 @@ def scenario_timeouts(log: dict, plan: GlobalPlan, spans) -> list[str]:
     return out
 
 
-def detect(log: dict, plan: GlobalPlan, route: Route, net, status: str, rules: str = "lb2.0") -> dict[str, list[str]]:
-    """All infraction lists of one route run, from its log and how it ended."""
+def detect(log: dict, plan: GlobalPlan, route: Route, net, status: str, rules: str = "lb2.0",
+           values: dict | None = None) -> dict[str, list[str]]:
+    """All infraction lists of one route run, from its log and how it ended; ``values`` (if
+    given) gets the unrounded value behind a percentage message (outside_lanes)."""
     ev = {k: [] for k in KEYS}
     if len(log["t"]) == 0:
         return ev
@@ -229,7 +236,7 @@ def detect(log: dict, plan: GlobalPlan, route: Route, net, status: str, rules: s
     ev.update(collisions(log))
     ev["red_light"] = red_lights(log, plan, net)
     ev["stop_infraction"] = stop_signs(log, plan)
-    ev["outside_route_lanes"] = outside_lanes(log, plan, LaneIndex.for_town(route.town), spans)
+    ev["outside_route_lanes"] = outside_lanes(log, plan, LaneIndex.for_town(route.town), spans, values)
     ev["min_speed_infractions"] = min_speed(log, plan, rules, ended_by_criterion(status))
     ev["scenario_timeouts"] = scenario_timeouts(log, plan, spans)
     ending = STATUSES.get(status)

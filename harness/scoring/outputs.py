@@ -4,21 +4,23 @@
                    outside-lanes %, Collision/km, km driven, times, stability metrics
     summary.csv    per metric: the mean over route runs with a 95 % bootstrap interval
                    (2000 resamples of the routes, seeded: same records -> same file),
-                   and the Leaderboard's per-km infraction rates
-    results.json   the Leaderboard 2.0 results file (``--checkpoint``), see harness.scoring.scores
+                   among them Bench2Drive's success rate [%], and the Leaderboard's
+                   per-km infraction rates
+    results.json   the Leaderboard 2.0 results file (``--checkpoint``), see harness.scoring.scores:
+                   its records in route-run order, written as the leaderboard writes it
 """
 from __future__ import annotations
 
 import csv
-import json
 import math
 from pathlib import Path
 
 import numpy as np
 
 from harness.common.atomic import write_atomic
+from harness.scoring.bench2drive import success
 from harness.scoring.records import RECORD_FIELDS, STABILITY
-from harness.scoring.scores import results
+from harness.scoring.scores import results, results_text
 
 BOOTSTRAP = 2000  # resamples
 BOOTSTRAP_SEED = 0
@@ -75,6 +77,11 @@ def _mean_of(key: str):
     return stat
 
 
+def success_rate(records: list[dict]) -> float:
+    """Bench2Drive's success rate of route runs [%] (harness.scoring.bench2drive.success)."""
+    return 100.0 * sum(success(r["lb"]) for r in records) / len(records) if records else math.nan
+
+
 def summary_rows(records: list[dict], result: dict) -> list[dict]:
     """summary.csv's rows. The records are put in route order first: workers finish routes in
     an order that changes from run to run, and the bootstrap draws records by position."""
@@ -82,11 +89,12 @@ def summary_rows(records: list[dict], result: dict) -> list[dict]:
     rng = np.random.default_rng(BOOTSTRAP_SEED)
     rows = []
     for name, stat in [("driving_score", _mean_of("ds")), ("route_completion", _mean_of("rc")),
-                       ("infraction_penalty", _mean_of("is")), ("collisions_per_km", collisions_per_km),
+                       ("infraction_penalty", _mean_of("is")), ("success_rate", success_rate),
+                       ("collisions_per_km", collisions_per_km),
                        *[(k, _mean_of(k)) for k in STABILITY]]:
         v, lo, hi = bootstrap(records, stat, rng)
         rows.append({"metric": name, "value": v, "ci95_low": lo, "ci95_high": hi, "routes": len(records)})
-    for k, v in result["_checkpoint"]["global_record"]["infractions"].items():
+    for k, v in result["_checkpoint"]["global_record"].get("infractions", {}).items():
         unit = "km" if k == "outside_route_lanes" else "per km"
         rows.append({"metric": f"{k} ({unit})", "value": v, "ci95_low": "", "ci95_high": "", "routes": len(records)})
     return rows
@@ -96,13 +104,13 @@ def write_outputs(records: list[dict], total: int, out: Path, checkpoint: Path, 
                   finished: bool, summary: bool = True) -> dict:
     """Write records.csv, results.json (at ``checkpoint``) and, if asked, summary.csv."""
     write_records_csv(records, out / "records.csv")
-    lb = [r["lb"] for r in _sorted(records)]
+    lb = sorted((r["lb"] for r in records), key=lambda r: r["index"])
     result = results(lb, total, sensors, finished)
-    write_atomic(checkpoint, json.dumps(result, indent=2) + "\n")
+    write_atomic(checkpoint, results_text(result))  # as the leaderboard writes it; no NaN
     if summary and records:
         _write_csv(out / "summary.csv", ["metric", "value", "ci95_low", "ci95_high", "routes"],
                    summary_rows(records, result))
     return result
 
 
-__all__ = ["write_outputs", "write_records_csv", "summary_rows", "collisions_per_km", "bootstrap"]
+__all__ = ["write_outputs", "write_records_csv", "summary_rows", "success_rate", "collisions_per_km", "bootstrap"]

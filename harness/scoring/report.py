@@ -1,7 +1,28 @@
-"""``sumo-scimm report DIR...``: the paper's Table 3 (DS, RC, IS, Collision/km) and
-Table 4 (steering jerk, longitudinal jerk, curvature variation, speed variation) for
-several run folders, each row with its relative change against the first run,
-``100 * (x - x_first) / |x_first|`` %, as CSV and Markdown.
+"""``sumo-scimm report``: the paper's Table 3 (DS, RC, IS, Collision/km) and Table 4 (the
+stability metrics of harness.scoring.stability) for several arms, as CSV and Markdown.
+
+An arm is one run folder of ``sumo-scimm eval`` or several (its seeds: ``report
+baseline=runs/b_s0,runs/b_s1 scimm=runs/s_s0,runs/s_s1``; a bare folder is an arm of one
+run named after the folder). The first arm is the baseline. For each figure:
+
+- each arm's value: the mean over its runs of the figure over the routes (Collision/km:
+  summed collisions over summed km), with a 95 % percentile interval from a two-level
+  bootstrap: resample the runs (seeds), then the routes, the same routes for every run of
+  a draw; with one run, the bootstrap over routes;
+- each arm's difference from the baseline, ``x - x_baseline``, and its relative change,
+  ``100 (x - x_baseline) / |x_baseline|`` % (the paper's), with a PAIRED bootstrap interval:
+  every draw resamples the routes once for all arms (route-paired) and each arm's runs on
+  their own (seed-level);
+- the same tables again on the routes that every compared run completed (status Perfect or
+  Completed), so arms are compared where all of them drove the whole route.
+
+A figure is computed on the routes that are in every compared run and where it is defined
+in every one of them (a stability metric is NaN for an agent that predicts nothing, or a
+route without a moving tick), so the arms' figures are always over the same routes. The
+bootstrap is seeded (BOOT_SEED): the same run folders give the same files.
+
+Records of a run made before a stability column existed get it from the run's logs
+(``logs/<key>.npz``), so older run folders can be compared by the current definitions.
 """
 from __future__ import annotations
 
@@ -12,183 +33,279 @@ from pathlib import Path
 
 import numpy as np
 
-TABLE3 = (("DS", "driving score"), ("RC", "route completion"), ("IS", "infraction penalty"),
+from harness.scoring.records import STABILITY
+from harness.scoring.stability import stability
+from harness.scoring.statuses import COMPLETED, PERFECT
+
+TABLE3 = (("DS", "driving score"), ("RC", "route completion [%]"), ("IS", "infraction penalty"),
           ("Collision/km", "collisions per km driven"))
-TABLE4 = (("steering_jerk", "steering jerk [1/s^2]"), ("longitudinal_jerk", "longitudinal jerk [1/s^2]"),
-          ("curvature_variation", "curvature variation [1/m]"), ("speed_variation", "speed variation [m/s]"))
+TABLE4 = (("steering_jerk_moving", "steering jerk [1/s^2]"), ("longitudinal_jerk_moving", "longitudinal jerk [1/s^2]"),
+          ("curvature_variation_wps", "curvature variation [1/m]"), ("speed_variation_kmh", "speed variation [km/h]"))
+TABLE4_OTHER = (("curvature_variation_path", "path curvature variation [1/m]"),
+                ("curvature_variation_quadratic", "quadratic curvature variation [1/m]"),
+                ("speed_variation_ms", "speed variation [m/s]"), ("standing_share", "standing share"))
+TABLE4_ALL = tuple((k, k) for k in STABILITY)  # every stability column (the CSV)
+COLLISIONS = ("collisions_layout", "collisions_pedestrian", "collisions_vehicle")
+BOOTSTRAP, BOOT_SEED = 2000, 0  # resamples; seed of the route and run draws
 
 
 class ReportError(ValueError):
     pass
 
 
-def load_run(folder: Path) -> dict[str, float]:
-    """Table figures of one run folder (results.json and records.csv)."""
+# --- reading run folders -----------------------------------------------------------------
+def check_run(folder: Path) -> None:
+    """ReportError unless ``folder`` is a finished run folder (results.json and records.csv)."""
     res, rec = folder / "results.json", folder / "records.csv"
     if not res.is_file() or not rec.is_file():
         raise ReportError(f"{folder} is not a run folder (needs results.json and records.csv from 'sumo-scimm eval')")
     try:
         data = json.loads(res.read_text())
-        g = data["_checkpoint"]["global_record"]["scores_mean"]
-        out = {"DS": float(g["score_composed"]), "RC": float(g["score_route"]), "IS": float(g["score_penalty"])}
-    except (json.JSONDecodeError, UnicodeDecodeError, KeyError, TypeError, ValueError) as exc:
-        raise ReportError(f"{res}: not a Leaderboard results file ({type(exc).__name__}: {exc})") from None
-    if data.get("entry_status") != "Finished":  # DS counts routes not run as 0; the records hold only those run
         prog = data["_checkpoint"].get("progress")
+    except (json.JSONDecodeError, UnicodeDecodeError, KeyError, TypeError, ValueError, AttributeError) as exc:
+        raise ReportError(f"{res}: not a Leaderboard results file ({type(exc).__name__}: {exc})") from None
+    # every route run done: Finished, or Crashed (a route's simulation crashed; the run went on)
+    if data.get("entry_status") not in ("Finished", "Crashed") or not data["_checkpoint"].get("global_record"):
         done = f"{prog[0]} of {prog[1]} route runs" if isinstance(prog, list) and len(prog) >= 2 else "progress unknown"
         raise ReportError(f"{folder}: the run is not finished ({done}): finish it with "
                           "'sumo-scimm eval ... --resume', or leave it out")
-    rows = _records(rec)
-    km = sum(r["km_driven"] for r in rows)
-    coll = sum(r[k] for r in rows for k in COLLISIONS)
-    out["Collision/km"] = coll / km if km > 0 else math.nan
-    for key, _ in TABLE4:
-        vals = np.array([r[key] for r in rows], dtype=float)
-        out[key] = float(np.nanmean(vals)) if np.isfinite(vals).any() else math.nan
-    return out
+    try:
+        data["_checkpoint"]["global_record"]["scores_mean"]["score_composed"]
+    except (KeyError, TypeError) as exc:
+        raise ReportError(f"{res}: not a Leaderboard results file ({type(exc).__name__}: {exc})") from None
+    from harness.scoring.validate import run_folder_problem  # a damaged folder: one line, not a table of nan
+    damaged = run_folder_problem(folder)
+    if damaged:
+        raise ReportError(damaged)
 
 
-COLLISIONS = ("collisions_layout", "collisions_pedestrian", "collisions_vehicle")
-
-
-def _records(path: Path) -> list[dict]:
-    """The rows of a run's records.csv with the table's columns as numbers; ReportError if
-    a column is missing or a value is not a number."""
-    numeric = ("ds", "rc", "is", "km_driven", *COLLISIONS, *(k for k, _ in TABLE4))
+def route_rows(folder: Path) -> dict[str, dict]:
+    """A finished run's records as {route key: {"DS", "RC", "IS", "coll", "km", "status",
+    <stability column>...}}; ReportError if a column is missing or not a number."""
+    check_run(folder)
+    path = folder / "records.csv"
     try:
         with open(path, newline="") as f:
-            rows = list(csv.DictReader(f))
-        return [{**r, **{k: float(r[k]) for k in numeric}} for r in rows]
+            reader = csv.DictReader(f)
+            rows = list(reader)
+            header = set(reader.fieldnames or ())
+        missing = [k for k in STABILITY if k not in header]
+        out = {}
+        for r in rows:
+            stab = {k: float(r[k]) for k in STABILITY if k in header}
+            if missing:
+                stab = {**_from_log(folder, r["key"], path), **stab}
+            out[r["key"]] = {"DS": float(r["ds"]), "RC": float(r["rc"]), "IS": float(r["is"]),
+                             "coll": sum(float(r[k]) for k in COLLISIONS), "km": float(r["km_driven"]),
+                             "status": r["status"], **stab}
+        return out
     except (KeyError, TypeError, ValueError, UnicodeDecodeError, csv.Error) as exc:
         raise ReportError(f"{path}: not a records.csv of 'sumo-scimm eval' ({type(exc).__name__}: {exc})") from None
 
 
+def _from_log(folder: Path, key: str, path: Path) -> dict[str, float]:
+    """The stability metrics of route run ``key`` computed from its log (records.csv from
+    before the column existed)."""
+    log = folder / "logs" / f"{key}.npz"
+    if not log.is_file():
+        raise ReportError(f"{path} has no column {STABILITY[0]!r} and there is no log {log} to compute it "
+                          "from: evaluate the run again with this sumo-scimm")
+    try:
+        with np.load(log, allow_pickle=False) as z:
+            return stability({k: z[k] for k in ("v", "steer", "throttle", "brake", "pred_path", "pred_speed_wps")})
+    except (OSError, ValueError, KeyError) as exc:
+        raise ReportError(f"{log}: not a log of 'sumo-scimm eval' ({type(exc).__name__}: {exc})") from None
+
+
+def parse_arms(specs: list[str]) -> dict[str, list[Path]]:
+    """``NAME=DIR[,DIR...]`` or ``DIR`` per item -> {arm name: run folders}, in order; a
+    bare folder is named after it (a repeated name gets a prime)."""
+    arms: dict[str, list[Path]] = {}
+    for spec in specs:
+        name, sep, dirs = spec.partition("=")
+        if sep and not (name and dirs and all(dirs.split(","))):
+            raise ReportError(f"{spec!r}: an arm is NAME=DIR[,DIR...] or a run folder")
+        folders = [Path(d) for d in dirs.split(",")] if sep else [Path(spec)]
+        name = name if sep else (folders[0].name or spec)
+        while name in arms:
+            name += "'"
+        arms[name] = folders
+    if not arms:
+        raise ReportError("no run folder given")
+    return arms
+
+
+# --- figures and their bootstrap ------------------------------------------------------------
+def _values(runs: list[dict[str, dict]], keys: list[str], figure: str) -> np.ndarray:
+    """(S, R) per-route values (Collision/km: (2, S, R) collisions and km) of S runs, R keys."""
+    if figure == "Collision/km":
+        return np.array([[[run[k]["coll"] for k in keys] for run in runs], [[run[k]["km"] for k in keys] for run in runs]])
+    return np.array([[run[k][figure] for k in keys] for run in runs], dtype=float)
+
+
+def _stat(vals: np.ndarray, figure: str, routes: np.ndarray) -> np.ndarray:
+    """The figure of every run for every route draw: routes (B, R) indices -> (S, B)."""
+    if figure == "Collision/km":
+        coll, km = vals[0][:, routes].sum(axis=2), vals[1][:, routes].sum(axis=2)
+        return np.divide(coll, km, out=np.full(coll.shape, np.nan), where=km > 0)
+    return vals[:, routes].mean(axis=2)
+
+
+def compare(arms: dict[str, list[dict[str, dict]]], figures, keys: list[str] | None = None,
+            n_boot: int = BOOTSTRAP, seed: int = BOOT_SEED) -> dict[str, dict[str, dict]]:
+    """{arm: {figure: {"value", "low", "high", "diff", "diff_low", "diff_high", "change",
+    "change_low", "change_high", "routes"}}} for arms given as lists of route rows (one
+    dict per run, module docstring); the first arm is the baseline (its differences are 0).
+    ``keys``: the routes to use (default: those in every run)."""
+    runs = [r for rs in arms.values() for r in rs]
+    common = set.intersection(*(set(r) for r in runs))
+    keys = sorted(common if keys is None else common & set(keys))
+    out: dict[str, dict[str, dict]] = {name: {} for name in arms}
+    for f_index, (figure, _) in enumerate(figures):
+        use = [k for k in keys if figure == "Collision/km" or all(math.isfinite(r[k][figure]) for r in runs)]
+        for name in arms:
+            out[name][figure] = {"routes": len(use)}
+        if not use:
+            for name in arms:
+                out[name][figure].update(dict.fromkeys(("value", "low", "high", "diff", "diff_low", "diff_high",
+                                                        "change", "change_low", "change_high"), math.nan))
+            continue
+        rng = np.random.default_rng([seed, f_index])
+        routes = rng.integers(0, len(use), size=(n_boot, len(use)))  # one route draw for every arm
+        everything = np.arange(len(use))[None]
+        point, draws = {}, {}
+        for name, rs in arms.items():
+            vals = _values(rs, use, figure)
+            point[name] = float(_stat(vals, figure, everything)[:, 0].mean())
+            per_run = _stat(vals, figure, routes)  # (S, B)
+            picks = rng.integers(0, len(rs), size=(n_boot, len(rs)))  # the arm's runs, resampled per draw
+            draws[name] = per_run[picks, np.arange(n_boot)[:, None]].mean(axis=1)  # (B,)
+        base = next(iter(arms))
+        for name in arms:
+            d = draws[name] - draws[base]
+            with np.errstate(divide="ignore", invalid="ignore"):
+                c = 100.0 * d / np.abs(draws[base])
+            diff = point[name] - point[base]
+            out[name][figure].update(
+                value=point[name], low=_pct(draws[name], 2.5), high=_pct(draws[name], 97.5), diff=diff,
+                diff_low=_pct(d, 2.5), diff_high=_pct(d, 97.5),
+                change=100.0 * diff / abs(point[base]) if point[base] != 0 else math.nan,
+                change_low=_pct(c, 2.5), change_high=_pct(c, 97.5))
+    return out
+
+
+def _pct(x: np.ndarray, q: float) -> float:
+    x = x[np.isfinite(x)]
+    return float(np.percentile(x, q)) if len(x) else math.nan
+
+
+def completed_keys(runs: list[dict[str, dict]]) -> list[str]:
+    """The routes that every run completed (status Perfect or Completed)."""
+    return sorted(k for k in set.intersection(*(set(r) for r in runs))
+                  if all(r[k]["status"] in (PERFECT, COMPLETED) for r in runs))
+
+
+# --- tables ----------------------------------------------------------------------------------
 def fig(x: float) -> str:
     """A table figure to 4 significant digits, so 0.00031 1/m reads as such, not 0.000."""
     return f"{x:.4g}"
 
 
-def _change(x: float, base: float) -> float:
-    return 100.0 * (x - base) / abs(base) if base not in (0.0,) and math.isfinite(base) else math.nan
+def _interval(lo: float, hi: float) -> str:
+    return f"[{fig(lo)}, {fig(hi)}]" if math.isfinite(lo) and math.isfinite(hi) else "[-]"
 
 
-def table(runs: dict[str, dict[str, float]], columns) -> list[dict]:
-    names = list(runs)
-    base = runs[names[0]]
+def csv_rows(result: dict, arms: dict, figures) -> list[dict]:
+    """One CSV row per arm: runs, then per figure its value, interval, difference and change."""
     rows = []
-    for name in names:
-        row = {"run": name}
-        for key, _ in columns:
-            row[key] = runs[name][key]
-            row[f"{key} change %"] = _change(runs[name][key], base[key])
+    for name, figs in result.items():
+        row: dict = {"arm": name, "runs": len(arms[name])}
+        for key, _ in figures:
+            f = figs[key]
+            row.update({key: f["value"], f"{key} ci95_low": f["low"], f"{key} ci95_high": f["high"],
+                        f"{key} diff": f["diff"], f"{key} diff ci95_low": f["diff_low"],
+                        f"{key} diff ci95_high": f["diff_high"], f"{key} change %": f["change"],
+                        f"{key} change % ci95_low": f["change_low"], f"{key} change % ci95_high": f["change_high"],
+                        f"{key} routes": f["routes"]})
         rows.append(row)
     return rows
 
 
-def markdown(rows: list[dict], columns, title: str) -> str:
-    head = "| run | " + " | ".join(f"{k} (change)" for k, _ in columns) + " |"
-    lines = [f"### {title}", "", head, "|" + " --- |" * (len(columns) + 1)]
-    for r in rows:
-        cells = []
-        for key, _ in columns:
-            v, c = r[key], r[f"{key} change %"]
-            cells.append(fig(v) + ("" if r is rows[0] or not math.isfinite(c) else f" ({c:+.1f} %)"))
-        lines.append(f"| {r['run']} | " + " | ".join(cells) + " |")
+def markdown(result: dict, arms: dict, figures, title: str) -> str:
+    """Two Markdown tables: each arm's mean with its interval, then each arm's difference from
+    the first with its paired interval and relative change; a line says on how many routes."""
+    names = list(result)
+    head = " | ".join(label for _, label in figures)
+    lines = [f"### {title}", "", f"| arm | runs | {head} |", "|" + " --- |" * (len(figures) + 2)]
+    for name in names:
+        cells = [f"{fig(result[name][k]['value'])} {_interval(result[name][k]['low'], result[name][k]['high'])}"
+                 if math.isfinite(result[name][k]["value"]) else "-" for k, _ in figures]
+        lines.append(f"| {name} | {len(arms[name])} | " + " | ".join(cells) + " |")
+    if len(names) > 1:
+        lines += ["", f"Difference from {names[0]} (paired bootstrap, 95 %), and the relative change:", "",
+                  f"| arm | {head} |", "|" + " --- |" * (len(figures) + 1)]
+        for name in names[1:]:
+            cells = []
+            for k, _ in figures:
+                f = result[name][k]
+                change = f" ({f['change']:+.1f} % {_interval(f['change_low'], f['change_high'])})" \
+                    if math.isfinite(f["change"]) else ""
+                cells.append(f"{f['diff']:+.4g} {_interval(f['diff_low'], f['diff_high'])}{change}"
+                             if math.isfinite(f["diff"]) else "-")
+            lines.append(f"| {name} | " + " | ".join(cells) + " |")
+    counts = sorted({result[names[0]][k]["routes"] for k, _ in figures})
+    per = "; ".join(f"{label}: {result[names[0]][k]['routes']}" for k, label in figures)
+    lines += ["", f"Routes: {counts[0]}" if len(counts) == 1 else f"Routes per column: {per}"]
     return "\n".join(lines)
 
 
-def write_report(folders: list[Path], out: Path) -> str:
-    runs = {}
-    for f in folders:
-        name = f.name or str(f)
-        while name in runs:
-            name += "'"
-        runs[name] = load_run(f)
-    out.mkdir(parents=True, exist_ok=True)
-    text = []
-    for cols, stem, title in ((TABLE3, "table3", "Table 3: closed-loop driving performance"),
-                              (TABLE4, "table4", "Table 4: temporal stability")):
-        rows = table(runs, cols)
-        with open(out / f"{stem}.csv", "w", newline="") as fh:
-            w = csv.DictWriter(fh, fieldnames=list(rows[0]))
-            w.writeheader()
-            w.writerows(rows)
-        md = markdown(rows, cols, title)
-        (out / f"{stem}.md").write_text(md + "\n")
-        text.append(md)
-    return "\n\n".join(text)
+def _write_csv(path: Path, rows: list[dict]) -> None:
+    with open(path, "w", newline="") as fh:
+        w = csv.DictWriter(fh, fieldnames=list(rows[0]))
+        w.writeheader()
+        w.writerows(rows)
 
 
-# --- several seeds per arm (sumo-scimm reproduce) ---------------------------------------
-def _route_rows(folder: Path) -> dict[str, dict[str, float]]:
-    """records.csv of a run as {route key: figures}, for the seed-and-route bootstrap."""
-    load_run(folder)  # checks the folder
-    return {r["key"]: {"DS": r["ds"], "RC": r["rc"], "IS": r["is"], "coll": sum(r[k] for k in COLLISIONS),
-                       "km": r["km_driven"], **{k: r[k] for k, _ in TABLE4}} for r in _records(folder / "records.csv")}
-
-
-def _figures(rows: list[dict[str, float]]) -> dict[str, float]:
-    """Table 3 and 4 figures of a list of route rows (means; collisions per km over the sum)."""
-    out = {k: float(np.mean([r[k] for r in rows])) for k in ("DS", "RC", "IS")}
-    km = sum(r["km"] for r in rows)
-    out["Collision/km"] = sum(r["coll"] for r in rows) / km if km > 0 else math.nan
-    for key, _ in TABLE4:
-        vals = np.array([r[key] for r in rows], dtype=float)
-        out[key] = float(np.nanmean(vals)) if np.isfinite(vals).any() else math.nan
+def tables(arms: dict[str, list[Path]], n_boot: int = BOOTSTRAP) -> list[tuple[str, list[dict], str]]:
+    """[(file stem, CSV rows, Markdown)] of Tables 3 and 4, on every route and on the routes
+    every run completed; ReportError for a folder that is not a finished run."""
+    loaded = {name: [route_rows(f) for f in folders] for name, folders in arms.items()}
+    everyone = [r for rs in loaded.values() for r in rs]
+    if not set.intersection(*(set(r) for r in everyone)):
+        raise ReportError(f"no route is in every run of {', '.join(str(f) for fs in arms.values() for f in fs)}")
+    done = completed_keys(everyone)
+    out = []
+    for suffix, keys, where in (("", None, "every route"), ("_common", done, f"the {len(done)} routes every run completed")):
+        t3 = compare(loaded, TABLE3, keys, n_boot)
+        t4 = compare(loaded, TABLE4_ALL, keys, n_boot)
+        md4 = (markdown(t4, arms, TABLE4, f"Table 4: temporal stability on moving ticks ({where})") + "\n\n"
+               + markdown(t4, arms, TABLE4_OTHER, f"Table 4, other readings ({where})"))
+        out += [(f"table3{suffix}", csv_rows(t3, arms, TABLE3),
+                 markdown(t3, arms, TABLE3, f"Table 3: closed-loop driving performance ({where})")),
+                (f"table4{suffix}", csv_rows(t4, arms, TABLE4_ALL), md4)]
     return out
 
 
-def arm_figures(folders: list[Path], n_boot: int = 2000, seed: int = 0) -> dict[str, tuple[float, float, float]]:
-    """Mean over seeds (one run folder per seed) of every table figure, with a 95 % interval
-    from a two-level bootstrap: resample the seeds, then the routes (the same routes for
-    every seed of a draw). With one seed it is the bootstrap over routes.
-    Returns {figure: (mean, low, high)}."""
-    runs = [_route_rows(f) for f in folders]
-    keys = sorted(set.intersection(*(set(r) for r in runs)))
-    if not keys:
-        raise ReportError(f"no route is in every run of {', '.join(map(str, folders))}")
-    per_seed = [_figures([r[k] for k in keys]) for r in runs]
-    rng = np.random.default_rng(seed)
-    draws: dict[str, list[float]] = {k: [] for k in per_seed[0]}
-    for _ in range(n_boot):
-        seeds = rng.integers(0, len(runs), len(runs))
-        routes = [keys[i] for i in rng.integers(0, len(keys), len(keys))]
-        figs = [_figures([runs[s][k] for k in routes]) for s in seeds]
-        for k in draws:
-            draws[k].append(float(np.mean([f[k] for f in figs])))
-    return {k: (float(np.mean([f[k] for f in per_seed])), float(np.nanpercentile(draws[k], 2.5)),
-                float(np.nanpercentile(draws[k], 97.5))) for k in draws}
-
-
-def write_arm_report(arms: dict[str, list[Path]], out: Path, n_boot: int = 2000) -> str:
-    """Tables 3 and 4 for arms with several seeds each (the first arm is the baseline the
-    relative change is computed against, as the paper does): CSV and Markdown in ``out``."""
-    figs = {name: arm_figures(folders, n_boot) for name, folders in arms.items()}
-    base = figs[next(iter(figs))]
+def write_report(arms: dict[str, list[Path]] | list[Path], out: Path, n_boot: int = BOOTSTRAP) -> str:
+    """Tables 3 and 4 (module docstring) as ``out/table{3,4}[_common].{csv,md}``; returns the
+    Markdown. ``arms``: {name: run folders}, or a list of run folders (an arm each). Nothing
+    is written when a folder is refused."""
+    if not isinstance(arms, dict):
+        arms = parse_arms([str(f) for f in arms])
+    from harness.scoring.b2d_tables import b2d_tables  # Bench2Drive's SR, efficiency, smoothness; per hazard
+    made = tables(arms, n_boot) + b2d_tables(arms)
     out.mkdir(parents=True, exist_ok=True)
-    text = []
-    for cols, stem, title in ((TABLE3, "table3", "Table 3: closed-loop driving performance"),
-                              (TABLE4, "table4", "Table 4: temporal stability")):
-        rows = []
-        for name, f in figs.items():
-            row: dict = {"arm": name, "seeds": len(arms[name])}
-            for key, _ in cols:
-                m, lo, hi = f[key]
-                row.update({key: m, f"{key} ci95_low": lo, f"{key} ci95_high": hi,
-                            f"{key} change %": _change(m, base[key][0])})
-            rows.append(row)
-        with open(out / f"{stem}.csv", "w", newline="") as fh:
-            w = csv.DictWriter(fh, fieldnames=list(rows[0]))
-            w.writeheader()
-            w.writerows(rows)
-        lines = [f"### {title} (mean over seeds, 95 % interval, change against {rows[0]['arm']})", "",
-                 "| arm | seeds | " + " | ".join(k for k, _ in cols) + " |", "|" + " --- |" * (len(cols) + 2)]
-        for r in rows:
-            cells = [f"{fig(r[k])} [{fig(r[k + ' ci95_low'])}, {fig(r[k + ' ci95_high'])}]"
-                     + ("" if r is rows[0] or not math.isfinite(r[k + ' change %']) else f" ({r[k + ' change %']:+.1f} %)")
-                     for k, _ in cols]
-            lines.append(f"| {r['arm']} | {r['seeds']} | " + " | ".join(cells) + " |")
-        md = "\n".join(lines)
+    for stem, rows, md in made:
+        _write_csv(out / f"{stem}.csv", rows)
         (out / f"{stem}.md").write_text(md + "\n")
-        text.append(md)
-    return "\n\n".join(text)
+    return "\n\n".join(md for _, _, md in made)
+
+
+write_arm_report = write_report  # the name ``sumo-scimm reproduce`` calls it by
+
+
+def arm_figures(folders: list[Path], n_boot: int = BOOTSTRAP, seed: int = BOOT_SEED) -> dict[str, tuple[float, float, float]]:
+    """{figure: (mean over the runs, 2.5 %, 97.5 %)} of one arm's runs (its seeds), every
+    figure of Tables 3 and 4 (the two-level bootstrap of the module docstring)."""
+    result = compare({"arm": [route_rows(f) for f in folders]}, (*TABLE3, *TABLE4_ALL), None, n_boot, seed)["arm"]
+    return {k: (v["value"], v["low"], v["high"]) for k, v in result.items()}

@@ -1,0 +1,304 @@
+"""``sumo-scimm replay``: several agents fed the identical input sequence of a reference run.
+
+Closed-loop stability mixes two things: how stable a model's outputs are, and what it was
+exposed to (arms drive other trajectories, meet other traffic, stand for other times).
+Replay takes the exposure out. For each route of a reference run (any agent's, e.g. the
+expert's) it rebuilds every tick's scene from the run's log (harness.loop.scene_log),
+renders the BEV with the closed-loop renderer (bit for bit the BEV of the run), and gives
+every replayed agent the same sensor data the reference agent got that tick: BEV, target
+point, ego speed, command, pose (harness.loop.episode.sensor_inputs). The agents' controls
+drive nothing: the ego moves as it did in the reference run. Each agent's outputs (its
+controller's steer, throttle, brake; its predicted path and speed waypoints) give the
+stability metrics of harness.scoring.stability on the reference's moving ticks; arms are
+then compared route-paired with intervals (harness.scoring.report.compare).
+
+An agent is set up afresh for every route (``set_global_plan``, ``setup``, ``sensors``), as
+in ``eval``; agents that read the privileged ``world`` sensor are refused (the log keeps
+what the BEV draws, not the ids and speeds the expert reads). An agent that raises on a
+route gets a row with its message and no metrics there; the replay goes on.
+
+Outputs in ``--out``:
+
+    replay.csv           one row per route and agent: key, route, agent, ticks, moving
+                         ticks, message, the stability metrics
+    outputs/<key>.npz    per agent i: a<i>_steer, a<i>_throttle, a<i>_brake (T,),
+                         a<i>_pred_path (T, 20, 2), a<i>_pred_speed_wps (T, 10, 2) [m] ego frame
+    table.csv, table.md  the agents compared with the first (harness.scoring.report)
+    replay.json          the reference run, the agents, the routes and the software
+"""
+from __future__ import annotations
+
+import csv
+import hashlib
+import json
+import multiprocessing as mp
+import os
+import zipfile
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from tqdm import tqdm
+
+from harness.common.atomic import savez_atomic, write_atomic
+from harness.common.errors import BadInput
+from harness.loop.agent import check_agent, load_agent, split_output, validate_sensors
+from harness.loop.episode import sensor_inputs
+from harness.loop.scene_log import has_scene, scene_at
+from harness.scoring.records import STABILITY
+from harness.scoring.report import TABLE4, TABLE4_OTHER, compare, markdown
+from harness.scoring.stability import moving_ticks, stability
+
+LOG_KEYS = ("v", "steer", "throttle", "brake", "pred_path", "pred_speed_wps")
+COLUMNS = ("key", "route_id", "agent", "ticks", "moving_ticks", "message", *STABILITY)
+
+
+@dataclass(frozen=True)
+class ReplayJob:
+    """One route of the reference run and the agents to feed its inputs."""
+
+    key: str
+    route: object  # scenarios.routefile.Route
+    log: str  # the reference run's log of this route
+    agents: tuple[str, ...]  # as the user named them (the rows' labels)
+    names: tuple[str, ...]  # the agents to load (harness.loop.agent.load_agent)
+    configs: tuple[str | None, ...]  # their setup() configs
+    out: str  # the folder of the outputs/<key>.npz files
+
+
+def route_digest(route) -> str:
+    """The route's hash as run.jsonc records it (harness.runs.provenance.run_identity)."""
+    return hashlib.sha256(repr(route).encode()).hexdigest()[:16]
+
+
+def _load_log(path: str) -> dict[str, np.ndarray]:
+    with np.load(path, allow_pickle=False) as z:
+        return {k: z[k] for k in z.files}
+
+
+def replay_route(job: ReplayJob) -> list[dict]:
+    """Feed every agent the reference's inputs on one route; returns a row per agent
+    (COLUMNS) and writes the agents' outputs to ``out/<key>.npz``."""
+    from harness.sensors.bev import BevRenderer  # pulls OpenCV: imported where it is used
+    from harness.sim.plan import build_plan
+    from sumo_nets import load_net
+    log = _load_log(job.log)
+    route = job.route
+    plan = build_plan(route, load_net(route.town))
+    bev = BevRenderer.for_town(route.town)
+    n = min(len(log["scene_t"]), len(log["steer"]))
+    outs = [{"steer": np.full(n, np.nan), "throttle": np.full(n, np.nan), "brake": np.full(n, np.nan),
+             "pred_path": np.full((n, 20, 2), np.nan, np.float32),
+             "pred_speed_wps": np.full((n, 10, 2), np.nan, np.float32)} for _ in job.agents]
+    agents, specs, messages = [], [], [""] * len(job.agents)
+    for i, (name, config) in enumerate(zip(job.names, job.configs)):
+        try:
+            agent = load_agent(name)
+            agent.set_global_plan(plan)
+            agent.setup(config)
+            spec = agent.sensors()
+            validate_sensors(spec)
+        except Exception as exc:  # noqa: BLE001 - an agent failure is its row's message
+            agent, spec, messages[i] = None, [], f"set-up failed: {type(exc).__name__}: {exc}"
+        agents.append(agent)
+        specs.append(spec)
+    for t in range(n):
+        sc = scene_at(log, t)
+        frame = bev.render(sc.ego, sc.snap, plan, sc.lights, sc.props)
+        for i, agent in enumerate(agents):
+            if agent is None:
+                continue
+            try:
+                inputs = sensor_inputs(specs[i], sc.ego, plan, sc.progress, sc.snap, None, frame.copy)
+                control, pred = split_output(agent.run_step(inputs, sc.timestamp))
+            except Exception as exc:  # noqa: BLE001
+                messages[i] = f"tick {t}: {type(exc).__name__}: {exc}"
+                agents[i] = None
+                continue
+            o = outs[i]
+            o["steer"][t], o["throttle"][t], o["brake"][t] = control.steer, control.throttle, control.brake
+            if pred is not None and pred.path is not None:
+                o["pred_path"][t] = pred.path
+            if pred is not None and pred.speed_wps is not None:
+                o["pred_speed_wps"][t] = pred.speed_wps
+    for agent in agents:
+        try:
+            if agent is not None:
+                agent.destroy()
+        except Exception:  # noqa: BLE001 - destroy errors must not hide the route's outputs
+            pass
+    savez_atomic(Path(job.out) / f"{job.key}.npz", **{f"a{i}_{k}": v for i, o in enumerate(outs) for k, v in o.items()})
+    v = log["v"][:n]
+    rows = []
+    for i, o in enumerate(outs):
+        metrics = stability({"v": v, **o}) if not messages[i] else dict.fromkeys(STABILITY, float("nan"))
+        rows.append({"key": job.key, "route_id": route.id, "agent": job.agents[i], "ticks": n,
+                     "moving_ticks": int(moving_ticks(v).sum()), "message": messages[i], **metrics})
+    return rows
+
+
+def _routes_of_run(run: Path, routes: str | None) -> dict[str, object]:
+    """{route run key: Route} of a reference run: its run.jsonc names each route by a hash,
+    found in ``routes`` (a set name or file) or, without it, in the shipped route sets."""
+    from scenarios import resolve_set
+    from scenarios.make import SETS_DIR
+    from scenarios.routefile import read_routes
+    try:
+        from harness.runs.provenance import run_file
+        runs = json.loads(run_file(run).read_text())["route_runs"]
+        wanted = {key: r["route"] for key, r in runs.items()}
+    except (OSError, ValueError, KeyError, TypeError):
+        raise BadInput(f"{run}: no readable run.jsonc: give a run folder of 'sumo-scimm eval'") from None
+    files = [resolve_set(routes)] if routes else sorted(SETS_DIR.glob("*.xml"))
+    found = {}
+    for f in files:
+        for r in read_routes(f)[1]:
+            found.setdefault(route_digest(r), r)
+    out = {key: found[d] for key, d in wanted.items() if d in found}
+    missing = sorted(set(wanted) - set(out))
+    if missing:
+        where = f"route file {routes}" if routes else "any shipped route set"
+        raise BadInput(f"{run}: route run {missing[0]} drove a route that is not in {where}: give its set with --routes")
+    return out
+
+
+def check_agents(agents: list[str]) -> tuple[list[str], list[str | None]]:
+    """The agents' names and configs (``--agent NAME``, ``module:Class`` or ``PATH.pt``),
+    checked: BadInput for an unknown or repeated one, or one that reads the ``world``."""
+    if not agents:
+        raise BadInput("replay needs at least one --agent")
+    if len(set(agents)) < len(agents):
+        raise BadInput(f"--agent {next(a for a in agents if agents.count(a) > 1)!r} is given twice")
+    names, configs = [], []
+    for a in agents:
+        name, config = check_agent(a, None)
+        if any(s.get("type") == "world" for s in load_agent(name).sensors()):
+            raise BadInput(f"--agent {a!r} reads the privileged 'world' sensor, which a replay cannot give "
+                           "(the log keeps what the BEV draws): replay agents that drive from the BEV")
+        names.append(name)
+        configs.append(config)
+    return names, configs
+
+
+def plan_replay(run: Path, agents: list[str], out: Path | None, routes: str | None = None,
+                subset: str | None = None) -> list[ReplayJob]:
+    """The replay's jobs, every input checked first (BadInput naming the problem and the fix);
+    ``out`` None: check the reference and the agents only."""
+    from harness.runs.evaluate import select_routes
+    if not (run / "logs").is_dir():
+        raise BadInput(f"{run} is not a run folder of 'sumo-scimm eval' (no logs/)")
+    if out is not None and (out / "replay.csv").exists():
+        raise BadInput(f"{out} already holds a replay: choose another --out")
+    names, configs = check_agents(agents)
+    by_key = _routes_of_run(run, routes)
+    ids = sorted({r.id for r in by_key.values()}, key=lambda i: (len(i), i))
+    keep = set(select_routes(subset, ids))
+    jobs = []
+    for key, route in sorted(by_key.items(), key=lambda kv: (int(kv[1].id) if kv[1].id.isdigit() else 0, kv[0])):
+        if route.id not in keep:
+            continue
+        log = run / "logs" / f"{key}.npz"
+        if not log.is_file():
+            raise BadInput(f"{run}: no log of route run {key} ({log}): finish the run with 'sumo-scimm eval --resume'")
+        try:
+            with np.load(log, allow_pickle=False) as z:
+                scene = has_scene(z.files)
+        except (OSError, ValueError, zipfile.BadZipFile) as exc:
+            raise BadInput(f"{log} is damaged ({type(exc).__name__}: {exc}): evaluate the reference again") from None
+        if not scene:
+            raise BadInput(f"{log} keeps no scene state (a run from before scenes were logged): evaluate "
+                           "the reference again with this sumo-scimm")
+        jobs.append(ReplayJob(key, route, str(log), tuple(agents), tuple(names), tuple(configs),
+                              str(out / "outputs") if out is not None else ""))
+    if not jobs:
+        raise BadInput(f"--routes-subset {subset!r} selects no route run of {run}")
+    return jobs
+
+
+def run_replay(jobs: list[ReplayJob], workers: int | None = None, progress: bool = True) -> list[dict]:
+    """Every job's rows, on ``workers`` processes (None: every core; 1: in this process)."""
+    workers = min(workers or os.cpu_count() or 1, len(jobs))
+    rows: list[dict] = []
+    bar = tqdm(total=len(jobs), desc="replay", unit="route", disable=not progress or None)
+    if workers == 1:
+        for job in jobs:
+            rows += replay_route(job)
+            bar.update(1)
+    else:
+        with mp.get_context("spawn").Pool(workers) as pool:
+            for r in pool.imap_unordered(replay_route, jobs):
+                rows += r
+                bar.update(1)
+    bar.close()
+    order = {j.key: i for i, j in enumerate(jobs)}
+    agents = list(jobs[0].agents)
+    return sorted(rows, key=lambda r: (order[r["key"]], agents.index(r["agent"])))
+
+
+def replay(run: Path, agents: list[str], out: Path, *, routes: str | None = None, subset: str | None = None,
+           workers: int | None = None, n_boot: int = 2000, progress: bool = True) -> str:
+    """Replay reference run ``run`` with ``agents`` into ``out`` (module docstring); returns
+    the comparison table as Markdown."""
+    from harness.runs.provenance import software
+    jobs = plan_replay(run, agents, out, routes, subset)
+    (out / "outputs").mkdir(parents=True, exist_ok=True)
+    rows = run_replay(jobs, workers, progress)
+
+    def write(tmp: Path) -> None:
+        with open(tmp, "w", newline="") as f:
+            w = csv.DictWriter(f, fieldnames=COLUMNS)
+            w.writeheader()
+            w.writerows(rows)
+    write_atomic(out / "replay.csv", write)
+    md = replay_table(rows, list(jobs[0].agents), out, n_boot)
+    write_atomic(out / "replay.json", json.dumps({"reference": str(run.resolve()), "agents": list(jobs[0].agents),
+                                                  "configs": list(jobs[0].configs), "routes": [j.key for j in jobs],
+                                                  "software": software()}, indent=1) + "\n")
+    return md
+
+
+def replay_table(rows: list[dict], agents: list[str], out: Path, n_boot: int = 2000) -> str:
+    """The agents compared with the first, route-paired (harness.scoring.report.compare):
+    ``out/table.csv`` and ``table.md``; returns the Markdown."""
+    from harness.scoring.report import csv_rows
+    arms = {a: [{r["key"]: r for r in rows if r["agent"] == a}] for a in agents}
+    figures = (*TABLE4, *TABLE4_OTHER[:3])
+    res = compare(arms, figures, n_boot=n_boot)
+    ticks = sum(r["ticks"] for r in rows if r["agent"] == agents[0])
+    moving = sum(r["moving_ticks"] for r in rows if r["agent"] == agents[0])
+    md = (markdown(res, arms, TABLE4, "Replay: output stability on the reference run's inputs (moving ticks)")
+          + "\n\n" + markdown(res, arms, TABLE4_OTHER[:3], "Replay, other readings")
+          + f"\n\n{len(arms[agents[0]][0])} routes, {ticks} ticks of which {moving} moving.")
+    table = csv_rows(res, arms, figures)
+
+    def write(tmp: Path) -> None:
+        with open(tmp, "w", newline="") as f:
+            w = csv.DictWriter(f, fieldnames=list(table[0]))
+            w.writeheader()
+            w.writerows(table)
+    write_atomic(out / "table.csv", write)
+    write_atomic(out / "table.md", md + "\n")
+    return md
+
+
+REPLAY_AGENTS = ("baseline", "fixed", "scimm")  # the bench's replay: the three shipped students
+REPLAY_TARGET_S = 300.0  # SPEC §11: 100 routes with 3 agents in <= 5 min on 2 cores
+
+
+def replay_figure(run: Path, workers: int, agents: tuple[str, ...] = REPLAY_AGENTS) -> dict:
+    """The bench's replay figure: wall time [s] of replaying every route of ``run`` with
+    ``agents`` on ``workers`` processes (start-up of the workers included), into a
+    temporary folder that is removed afterwards."""
+    import tempfile
+    import time
+    jobs = plan_replay(run, list(agents), None)
+    with tempfile.TemporaryDirectory(prefix="replay-bench-") as tmp:
+        t0 = time.perf_counter()
+        replay(run, list(agents), Path(tmp), workers=workers, progress=False)
+        wall = time.perf_counter() - t0
+    ticks = 0
+    for j in jobs:
+        with np.load(j.log, allow_pickle=False) as z:
+            ticks += len(z["scene_t"])
+    return {"replay_wall_s": wall, "replay_routes": len(jobs), "replay_agents": len(agents), "replay_ticks": ticks,
+            "replay_workers": workers, "replay_target_s": REPLAY_TARGET_S}

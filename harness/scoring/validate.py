@@ -1,0 +1,177 @@
+"""The numbers of a results file and of a run folder, checked before they are scored.
+
+A Leaderboard results file (ours, or one written by CARLA's leaderboard) is read by
+``sumo-scimm score`` and ``report``; every number they use must be a finite number in its
+range, else the file is refused with one line naming the record, the field and the range:
+
+    scores.score_route         RC [%]                  [0, 100]
+    scores.score_penalty       IS                      [0, 1]      (recomputed; checked if present)
+    scores.score_composed      DS                      [0, 100]    (recomputed; checked if present)
+    meta.route_length          route length [m]        (0, 1e7]
+    meta.duration_game/_system durations [s]           [0, 1e9]
+    outside_route_lanes msg    metres >= 0, percentage [0, 100]
+    min_speed_infractions msg  percentage of the traffic's speed >= 0
+
+and a file with no route record is refused (a mean over no route is no score). The
+structure itself (``_checkpoint``, ``progress``, lists of messages) is checked by
+harness.scoring.scores, which asks ``results_problem`` once it has found records (this
+module reads the messages itself, so that it does not import the scorer it guards).
+
+``run_folder_problem`` does the same for what ``report`` reads from an eval run folder:
+records.csv with at least one row, finite figures in range, as many rows as results.json
+has records.
+"""
+from __future__ import annotations
+
+import csv
+import json
+import math
+from pathlib import Path
+
+# field -> (low, high, low is open)
+SCORE_RANGES = {"score_route": (0.0, 100.0, False), "score_penalty": (0.0, 1.0, False),
+                "score_composed": (0.0, 100.0, False)}
+# a route of up to 10,000 km, driven for up to 10^9 s (31 years): beyond, a number is damage
+META_RANGES = {"route_length": (0.0, 1e7, True), "duration_game": (0.0, 1e9, False),
+               "duration_system": (0.0, 1e9, False)}
+# records.csv columns report reads, with their ranges (stability metrics may be NaN: undefined)
+CSV_RANGES = {"ds": (0.0, 100.0, False), "rc": (0.0, 100.0, False), "is": (0.0, 1.0, False),
+              "km_driven": (0.0, math.inf, False)}
+_SHOWN = 16  # characters of a bad value quoted in a message
+
+
+def _shown(value, width: int = _SHOWN) -> str:
+    """``value`` for a message, cut to ``width`` characters."""
+    text = repr(value)
+    return text if len(text) <= width else f"{text[:width]}... ({len(text)} characters)"
+
+
+def _range(lo: float, hi: float, open_lo: bool) -> str:
+    return f"{'(' if open_lo else '['}{lo:g}, {hi:g}{']' if math.isfinite(hi) else ')'}"
+
+
+def number_problem(value, bounds: tuple[float, float, bool], text_ok: bool = False) -> str | None:
+    """None if ``value`` is a finite number inside ``bounds`` (low, high, low is open),
+    else what is wrong with it. ``text_ok``: a number written as text counts."""
+    lo, hi, open_lo = bounds
+    kinds = (int, float, str) if text_ok else (int, float)
+    if isinstance(value, bool) or not isinstance(value, kinds):
+        return f"is {_shown(value)}, not a number"
+    try:
+        v = float(value)
+    except (ValueError, OverflowError):
+        return f"is {_shown(value)}, not a finite number"
+    if not math.isfinite(v):
+        return f"is {_shown(value)}, not a finite number"
+    if v < lo or (open_lo and v == lo) or v > hi:
+        return f"is {_shown(value)}, outside {_range(lo, hi, open_lo)}"
+    return None
+
+
+def outside_lanes(message: str) -> tuple[float, float]:
+    """(metres, percentage) of 'Agent went outside its route lanes for about {m} meters ({q}% ...'."""
+    tokens = message.split()
+    return float(tokens[8]), float(tokens[10].lstrip("(").rstrip("%"))
+
+
+def min_speed_percent(message: str) -> float:
+    """p of 'Average speed is {p}% of the surrounding traffic's one'."""
+    return float(message.split()[3].rstrip("%"))
+
+
+def _message_problem(key: str, message) -> str | None:
+    """What is wrong with the numbers of one infraction message (None if nothing)."""
+    if not isinstance(message, str):
+        return f"a message of {key} is {_shown(message)}, not text"
+    try:
+        if key == "outside_route_lanes":
+            metres, pct = outside_lanes(message)
+            what = ("metres" if number_problem(metres, (0.0, math.inf, False)) else
+                    "percentage" if number_problem(pct, (0.0, 100.0, False)) else None)
+        elif key == "min_speed_infractions":
+            what = "percentage" if number_problem(min_speed_percent(message), (0.0, math.inf, False)) else None
+        else:
+            return None
+    except (ValueError, IndexError, OverflowError):
+        what = "numbers"
+    return f"{key} message {_shown(message, 72)} has no valid {what}" if what else None
+
+
+def record_problem(record) -> str | None:
+    """What is wrong with the numbers of one Leaderboard route record (None if nothing)."""
+    if not isinstance(record, dict):
+        return f"is {_shown(record)}, not a record"
+    infractions = record.get("infractions")
+    if not isinstance(infractions, dict) or not all(isinstance(v, list) for v in infractions.values()):
+        return None  # the scorer names what is wrong with the lists
+    if not isinstance(record.get("status"), str) or "route_id" not in record:
+        return "has no status text or no route_id"
+    scores, meta = record.get("scores"), record.get("meta")
+    if not isinstance(scores, dict) or not isinstance(meta, dict):
+        return "has no 'scores' or no 'meta' object"
+    if "score_route" not in scores:
+        return "scores.score_route is missing"
+    for key, bounds in SCORE_RANGES.items():
+        if key in scores:
+            bad = number_problem(scores[key], bounds, text_ok=True)
+            if bad:
+                return f"scores.{key} {bad}"
+    for key, bounds in META_RANGES.items():
+        if key not in meta:
+            return f"meta.{key} is missing"
+        bad = number_problem(meta[key], bounds)
+        if bad:
+            return f"meta.{key} {bad}"
+    for key, messages in infractions.items():
+        for m in messages:
+            bad = _message_problem(key, m)
+            if bad:
+                return bad
+    return None
+
+
+def results_problem(data: dict) -> str | None:
+    """What is wrong with the records of a Leaderboard results dict whose structure
+    harness.scoring.scores has accepted (None if nothing)."""
+    records = data["_checkpoint"]["records"]
+    if not records:
+        return "holds no route record: nothing to score (finish the run, or pass another results file)"
+    for i, r in enumerate(records):
+        bad = record_problem(r)
+        if bad:
+            rid = r.get("route_id", "?") if isinstance(r, dict) else "?"
+            return f"record {i} (route {_shown(rid, 40)}) {bad}: the file is damaged"
+    return None
+
+
+def run_folder_problem(folder: Path) -> str | None:
+    """What makes an eval run folder unfit for ``report`` (None if nothing, or if its files
+    are missing or not JSON/CSV at all: the report's own checks name those): a results.json
+    whose records are damaged, a records.csv without rows, with a figure that is not a
+    finite number in its range, or with another number of rows than results.json's records."""
+    res, rec = Path(folder) / "results.json", Path(folder) / "records.csv"
+    try:
+        data = json.loads(res.read_text())
+        records = data["_checkpoint"]["records"]
+        with open(rec, newline="") as f:
+            rows = list(csv.DictReader(f))
+    except (OSError, ValueError, KeyError, TypeError, UnicodeDecodeError, csv.Error):
+        return None
+    if not isinstance(records, list):
+        return None
+    if not rows:
+        return (f"{rec} has no route row: the run folder is damaged (run 'sumo-scimm eval ... --resume' to "
+                "write it again)")
+    bad = results_problem(data)
+    if bad:
+        return f"{res}: {bad}"
+    for i, row in enumerate(rows):
+        for key, bounds in CSV_RANGES.items():
+            if key in row:
+                bad = number_problem(row[key], bounds, text_ok=True)
+                if bad:
+                    return f"{rec}: row {i + 1} {key} {bad}: the run folder is damaged"
+    if len(rows) != len(records):
+        return (f"{rec} has {len(rows)} rows but {res.name} {len(records)} records: the run folder is damaged "
+                "(run 'sumo-scimm eval ... --resume' to write both again)")
+    return None

@@ -1,0 +1,35 @@
+"""``sumo-scimm replay``: several agents fed the identical inputs of a reference run, their
+output stability compared route-paired (harness.runs.replay, SPEC §9)."""
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from harness.common.errors import BadInput
+
+
+def _replay(args: argparse.Namespace) -> int:
+    from harness.runs.replay import replay
+    if args.workers is not None and args.workers < 1:
+        raise BadInput(f"--workers {args.workers}: must be >= 1")
+    md = replay(Path(args.run), args.agent, Path(args.out), routes=args.routes, subset=args.routes_subset,
+                workers=args.workers)
+    print(md)
+    print(f"-> {args.out}/replay.csv, table.csv, table.md, outputs/")
+    return 0
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    """Add ``sumo-scimm replay``."""
+    rp = sub.add_parser("replay", help="feed agents the identical inputs of a reference run and compare the "
+                        "stability of their outputs")
+    rp.add_argument("--run", required=True, help="reference run folder of 'sumo-scimm eval' (any agent's)")
+    rp.add_argument("--agent", action="append", required=True,
+                    help="agent to replay (name, module:Class or a student checkpoint .pt); repeat for several, "
+                         "the first is the one the others are compared with")
+    rp.add_argument("--out", required=True, help="output folder (replay.csv, table.csv|md, outputs/)")
+    rp.add_argument("--routes", help="route set or file the reference drove (default: found among the shipped "
+                    "sets by the routes' hashes in its run.jsonc)")
+    rp.add_argument("--routes-subset", help="route ids to replay: '3', '0-9', '1,4,7' (default all)")
+    rp.add_argument("--workers", type=int, default=None, help="worker processes (default: number of cores)")
+    rp.set_defaults(func=_replay)

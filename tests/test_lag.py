@@ -1,0 +1,53 @@
+"""Lag figures (scimm.lag): alignment offset, standstill frames, mode switches."""
+from __future__ import annotations
+
+import numpy as np
+
+from scimm import pathspeed as ps
+from scimm.lag import OFFSETS, lag_tables, offset_errors, stood, switches
+
+
+def test_a_series_delayed_by_two_frames_aligns_at_offset_two():
+    expert = np.sin(np.arange(60) / 3.0)
+    late = np.concatenate([expert[:2], expert[:-2]])  # teacher_t = expert_(t-2)
+    err = offset_errors(late, expert, np.zeros(60, dtype=int))
+    mae = err[:, 0, 0] / err[:, 0, 1]
+    assert OFFSETS[int(np.argmin(mae))] == 2
+    assert mae[OFFSETS.index(2)] == 0.0
+    # counts: offset k compares the 60 - |k| frames whose t - k exists
+    np.testing.assert_array_equal(err[:, 0, 1], [60 - abs(k) for k in OFFSETS])
+
+
+def test_stood_needs_three_still_frames_in_a_row():
+    v = np.array([1.0, 0.0, 0.0, 0.0, 0.05, 0.5, 0.0, 0.0, 0.1, 0.0])
+    np.testing.assert_array_equal(stood(v), [0, 0, 0, 1, 1, 0, 0, 0, 1, 1])
+
+
+def test_switches_count_changes_of_the_argmax():
+    mu = np.eye(5)[[0, 0, 1, 1, 0, 2, 2]]
+    assert switches(mu) == 3
+
+
+def test_lag_tables_on_a_teacher_one_frame_late():
+    """Raw speeds ramp down 8 -> 0 and stand; the teacher is the raw labels one frame late.
+    Its v(0) offset is +1; where the expert has stood 0.5 s the late teacher stands too."""
+    T = 20
+    v0 = np.maximum(8.0 - np.arange(T), 0.0)  # stops at frame 8
+    speed = np.repeat(v0[:, None], 10, axis=1)
+    x = np.zeros((T, 5))
+    x[:, 1] = 0.01 * np.arange(T)  # a curvature that changes: c0 stays 0, aligned
+    path = ps.state_path(x)
+    late = np.concatenate([speed[:1], speed[:-1]])
+    ep = {"raw": {"path": path, "speed": speed}, "v": v0,
+          "fixed": {"path": path, "speed": late, "mu": np.eye(5)[[0] * T]},
+          "scimm": {"path": path, "speed": speed, "mu": np.eye(5)[[0] * T]}}
+    align, still = lag_tables([ep], ("fixed", "scimm"))
+    a = align.set_index(["mode", "method"])
+    assert a.loc[("Cruise", "Fixed-IMM"), "v0_offset"] == 1
+    assert a.loc[("Cruise", "SC-IMM"), "v0_offset"] == 0
+    assert a.loc[("Cruise", "SC-IMM"), "v0_mae"] == 0.0
+    s = still.set_index("method")
+    # stood: frames 10..19 (v = 0 at 8, 9, 10 first); the late teacher says v0[9] = 0 there too
+    assert s.loc["Original Raw Expert", "stood_frames"] == 10
+    assert s.loc["Fixed-IMM", "standing_share"] == 1.0
+    assert s.loc["Fixed-IMM", "switches_per_min"] == 0.0

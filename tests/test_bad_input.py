@@ -1,11 +1,9 @@
-"""Bad input the option fuzz of test_reliability.py does not reach: a resumed folder that
+"""Bad input the option fuzz of test_bad_input_fuzz.py does not reach: a resumed folder that
 holds another run, output paths that cannot be written, an agent that cannot be built, a
 results file with more records than planned routes, damaged run and dataset folders. Each
 gives one line, exit code 2, no traceback, and leaves what was there as it was."""
 from __future__ import annotations
 
-import contextlib
-import io
 import json
 import shutil
 from pathlib import Path
@@ -13,28 +11,11 @@ from pathlib import Path
 import pytest
 
 from harness.common.errors import BadInput
-from sumo_scimm.cli import main
+from tests.run_folder_helpers import _cli, _one_line_exit_2
 
 SMOKE_ROUTE = ["eval", "--routes", "town12_smoke", "--routes-subset", "0", "--agent", "route_follower",
                "--workers", "1"]
 SMOKE_TWO = [*SMOKE_ROUTE[:4], "0-1", *SMOKE_ROUTE[5:]]  # the same with routes 0 and 1
-
-
-def _cli(argv: list[str]) -> tuple[int, str]:
-    buf = io.StringIO()
-    with contextlib.redirect_stdout(buf), contextlib.redirect_stderr(buf):
-        code = main(argv)
-    return code, buf.getvalue()
-
-
-def _one_line_exit_2(code: int, printed: str, *words: str) -> None:
-    lines = [ln for ln in printed.splitlines() if ln.strip()]
-    assert code == 2, printed
-    assert len(lines) == 1, printed
-    assert lines[0].startswith("sumo-scimm: error: "), printed
-    assert "Traceback" not in printed
-    for w in words:
-        assert w in lines[0], (w, lines[0])
 
 
 def _tree(folder: Path) -> dict[str, bytes]:

@@ -1,0 +1,65 @@
+"""Helpers of the run-folder and bad-input tests (test_run_folder.py, test_write_errors.py,
+test_bad_input.py): the smoke
+commands, running the CLI in-process, and checks of a run folder's files."""
+from __future__ import annotations
+
+import contextlib
+import csv
+import io
+import json
+import os
+from pathlib import Path
+
+from harness.common.lock import LOCK_NAME
+from sumo_scimm.cli import main
+
+
+ROOT = Path(__file__).resolve().parents[1]
+SMOKE_ONE = ["eval", "--routes", "town12_smoke", "--routes-subset", "0", "--agent", "route_follower",
+             "--workers", "1"]
+SMOKE_TWO = [*SMOKE_ONE[:4], "0-1", *SMOKE_ONE[5:]]
+ENV = {**os.environ, "PYTHONPATH": str(ROOT)}
+
+
+def _cli(argv: list[str]) -> tuple[int, str]:
+    buf = io.StringIO()
+    with contextlib.redirect_stdout(buf), contextlib.redirect_stderr(buf):
+        code = main(argv)
+    return code, buf.getvalue()
+
+
+def _one_line_exit_2(code: int, printed: str, *words: str) -> str:
+    lines = [ln for ln in printed.splitlines() if ln.strip()]
+    assert code == 2, printed
+    assert len(lines) == 1, printed
+    assert lines[0].startswith("sumo-scimm: error: "), printed
+    assert "Traceback" not in printed
+    for w in words:
+        assert w in lines[0], (w, lines[0])
+    return lines[0]
+
+
+def _records(out: Path) -> list[dict]:
+    return [json.loads(line) for line in (out / "records.jsonl").read_text().splitlines()]
+
+
+def _leftovers(out: Path) -> list[Path]:
+    """Temporary files and lock files left in a folder tree."""
+    return [p for p in out.rglob("*") if p.name.endswith((".tmp", ".tmp.npz")) or p.name == LOCK_NAME]
+
+
+def _consistent(out: Path) -> list[str]:
+    """records.jsonl, records.csv and results.json list the same route runs; returns them."""
+    keys = [r["key"] for r in _records(out)]
+    with open(out / "records.csv", newline="") as f:
+        assert sorted(r["key"] for r in csv.DictReader(f)) == sorted(keys)
+    data = json.loads((out / "results.json").read_text())
+    assert len(data["_checkpoint"]["records"]) == len(keys)
+    return keys
+
+
+def _without_wall_clock(rec: dict) -> dict:
+    rec = dict(rec)
+    rec.pop("wall_time")
+    rec["lb"] = {**rec["lb"], "meta": {**rec["lb"]["meta"], "duration_system": None}}
+    return rec

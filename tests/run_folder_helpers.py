@@ -1,6 +1,6 @@
 """Helpers of the run-folder and bad-input tests (test_run_folder.py, test_write_errors.py,
-test_bad_input.py): the smoke
-commands, running the CLI in-process, and checks of a run folder's files."""
+test_bad_input.py): the smoke commands, running the CLI in-process, and checks of a run
+folder's files."""
 from __future__ import annotations
 
 import contextlib

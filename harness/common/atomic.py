@@ -47,16 +47,8 @@ def savez_atomic(path: Path, /, **arrays) -> None:
     is positional-only: an array may be called "path")."""
     path = Path(path)
     tmp = path.with_name(path.name + ".tmp.npz")
-    with signals_held():
-        try:
-            np.savez_compressed(tmp, **arrays)
-            os.replace(tmp, path)
-        except OSError as exc:
-            _remove(tmp)
-            raise _naming(exc, path) from exc
-        except BaseException:
-            _remove(tmp)
-            raise
+    with _replacing(path, tmp):
+        np.savez_compressed(tmp, **arrays)
 
 
 def write_atomic(path: Path, content: str | bytes | Callable[[Path], None]) -> None:
@@ -66,14 +58,22 @@ def write_atomic(path: Path, content: str | bytes | Callable[[Path], None]) -> N
     temporary file and raises (an OSError naming ``path``)."""
     path = Path(path)
     tmp = path.with_name(path.name + ".tmp")
+    with _replacing(path, tmp):
+        if isinstance(content, str):
+            tmp.write_text(content)
+        elif isinstance(content, bytes):
+            tmp.write_bytes(content)
+        else:
+            content(tmp)
+
+
+@contextlib.contextmanager
+def _replacing(path: Path, tmp: Path):
+    """Stops held while the body writes ``tmp``, which then replaces ``path``; on any failure
+    ``tmp`` is removed, and an OSError is raised again naming ``path``."""
     with signals_held():
         try:
-            if isinstance(content, str):
-                tmp.write_text(content)
-            elif isinstance(content, bytes):
-                tmp.write_bytes(content)
-            else:
-                content(tmp)
+            yield
             os.replace(tmp, path)
         except OSError as exc:
             _remove(tmp)

@@ -37,7 +37,7 @@ PACKED_BYTES = int(np.prod(BEV_SHAPE)) // 8
 AUG_SEED = 0  # fixed: the cache (and so the augmented views) is shared by every training
 MAX_SHIFT = 1.0  # [m] lateral viewpoint shift, uniform in +-MAX_SHIFT
 MAX_ROT = np.deg2rad(10.0)  # [rad] viewpoint rotation, uniform in +-MAX_ROT
-CACHE_VERSION = 2  # bump when the cache layout or the rendering changes
+CACHE_VERSION = 3  # bump when the cache layout or the rendering changes
 
 
 def binarize(bev: np.ndarray) -> np.ndarray:

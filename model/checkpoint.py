@@ -26,6 +26,7 @@ from model.network import NetConfig, Student
 FORMAT = "sumo-scimm-student/1"
 ZIP_MAGIC, PICKLE_PROTO = b"PK\x03\x04", b"\x80"  # how torch files start: zip (torch.save), legacy pickle
 WEIGHTS_NAME = "student.pt"  # file name inside a training's --out folder
+HISTORY_NAME = "history.json"  # beside it: per-epoch losses, the chosen epoch (model.train, model.curves)
 
 
 def git_commit() -> str:

@@ -10,6 +10,14 @@ Teacher file contract (written by ``sumo-scimm teacher``)::
 Row k is frame k of ``DIR/episodes/<stem>.npz``. A baseline (no teacher) never opens
 ``DIR/teacher``.
 
+The loss-matched control (teacher ``control``) has no files either: its "teacher" is the
+expert itself, built per batch in the sample's label frame, so it differs from a teacher
+arm only in the content of the targets: teacher_path = the expert path, teacher_speed =
+phi(expert speed waypoints, origin) (paper eq. 12, model.loss.phi), mu = uniform 1/5. The
+uniform posterior is the constant that carries no information (the largest entropy; no
+frame is told any mode), needs no teacher to compute, and is reached by constant logits,
+so the mode head can satisfy it without shaping the shared representation.
+
 Augmentation and teachers: a sample is either view 0 (as recorded) or an augmented view
 (model.cache: viewpoint shifted ``shift`` m left and turned ``rot`` rad). The expert labels
 of each view come from the cache; the path teacher is moved by the same rigid transform
@@ -36,9 +44,13 @@ import torch
 from harness.sensors.bev import EGO_ROW, RES, ROUTE
 from harness.common.errors import BadInput
 from model import cache as bevcache
+from model.loss import phi
 from scimm.teacher import episode_files
 
-TEACHER_METHODS = ("fixed", "scimm", "smoother")
+TEACHER_METHODS = ("fixed", "scimm", "smoother")  # teachers with files (DIR/teacher/<method>)
+CONTROL = "control"  # the loss-matched control: the expert's own labels as the teacher
+TEACHERS = (CONTROL, *TEACHER_METHODS)  # what a training's --teacher accepts besides none
+CONTROL_MU = 1.0 / 5  # the control's mode target, every one of the five modes
 
 
 def move(points: np.ndarray, shift: np.ndarray, rot: np.ndarray) -> np.ndarray:
@@ -96,13 +108,17 @@ class StudentData:
     teacher: dict[str, np.ndarray] | None
     digest: str  # dataset hash
     folder: Path
+    control: bool = False  # teacher targets from the expert's own labels (CONTROL)
 
     @classmethod
     def load(cls, folder: Path, cache_dir: Path, views: int, teacher: str | None = None,
              workers: int = 2) -> "StudentData":
-        """Build or load the cache; load the teacher files if ``teacher`` names a method."""
+        """Build or load the cache; load the teacher files if ``teacher`` names a method
+        of TEACHER_METHODS (CONTROL opens none)."""
         folder = Path(folder)
         check_dataset(folder)
+        control = teacher == CONTROL
+        teacher = None if control else teacher
         if teacher is not None:
             check_teacher(folder, teacher)  # before minutes of rendering
         digest = bevcache.dataset_hash(folder)
@@ -112,7 +128,7 @@ class StudentData:
             stems = [str(s) for s in arrays["stems"]]
             lengths = np.bincount(arrays["episode"], minlength=len(stems)).tolist()
             t = load_teacher(folder, teacher, stems, lengths)
-        return cls(arrays, t, digest, folder)
+        return cls(arrays, t, digest, folder, control)
 
     def __len__(self) -> int:
         return len(self.arrays["speed"])
@@ -140,7 +156,7 @@ class StudentData:
 
         bev (B, 9, 64, 64) float {0, 1}; target_point (B, 2), path (B, 20, 2), speed_wps
         (B, 10, 2), origin (B, 2) [m] in the view's ego frame; speed (B,) [m/s]; with a
-        teacher also teacher_path (B, 20, 2) [m], teacher_speed (B, 10) [m/s], mu (B, 5).
+        teacher (or the control) also teacher_path (B, 20, 2) [m], teacher_speed (B, 10) [m/s], mu (B, 5).
         """
         a = self.arrays
         bev = bevcache.unpack(a["bev"][idx, view])  # (B, 9, 64, 64)
@@ -155,7 +171,11 @@ class StudentData:
             out[k] = torch.from_numpy(a[k][idx, view])
         shift, rot = a["aug"][idx, view, 0], a["aug"][idx, view, 1]
         out["origin"] = torch.from_numpy(move(np.zeros((len(idx), 2)), shift, rot).astype(np.float32))
-        if self.teacher is not None:
+        if self.control:  # the expert's own labels, in the same (augmented) frame
+            out["teacher_path"] = out["path"].clone()
+            out["teacher_speed"] = phi(out["speed_wps"], out["origin"])  # the expert's own speeds
+            out["mu"] = torch.full((len(idx), 5), CONTROL_MU)
+        elif self.teacher is not None:
             out["teacher_path"] = torch.from_numpy(move(self.teacher["path"][idx], shift, rot).astype(np.float32))
             out["teacher_speed"] = torch.from_numpy(self.teacher["speed"][idx])
             out["mu"] = torch.from_numpy(self.teacher["mu"][idx])

@@ -18,12 +18,21 @@ sample's augmentation, see model.data):
 | V^T | (B, 10) | m/s | speed teacher at tau = 0.25..2.5 s |
 | mu^T | (B, 5) | - | teacher mode posterior [Cruise, Turn, Deceleration, Avoidance, Recovery] |
 
+The teacher symbols per ``--teacher`` (model.data):
+
+| teacher | P^T | V^T | mu^T |
+| --- | --- | --- | --- |
+| none (baseline) | - | - | - (l_scimm = l_mode = 0) |
+| control | P (the expert path) | phi(W) (the expert's own speeds) | 1/5 each (constant) |
+| fixed, scimm, smoother | the teacher's path | the teacher's speeds | the teacher's posterior |
+
 Normalisation (the paper gives none): as SimLingo-Base's MSE, a squared point distance is
 summed over x, y and averaged over the points of a sequence, then over the batch; the speed
 term of eq. 11 is averaged over its 10 speeds. KL is in nats, averaged over the batch.
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import torch
@@ -41,8 +50,8 @@ class LossWeights:
     mode: float = 0.1  # auxiliary: shapes the shared representation, must not dominate it
 
     def __post_init__(self) -> None:
-        if min(self.origin, self.scimm, self.mode) < 0:
-            raise ValueError(f"loss weights must be >= 0, got {self}")
+        if not all(math.isfinite(w) and w >= 0 for w in (self.origin, self.scimm, self.mode)):
+            raise ValueError(f"loss weights must be finite and >= 0, got {self}")
 
 
 BASELINE = LossWeights(scimm=0.0, mode=0.0)

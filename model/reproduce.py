@@ -1,14 +1,17 @@
 """``sumo-scimm reproduce``: the paper's whole experiment on a CPU, one stage after another.
 
     collect train + val (expert) -> teachers (fixed, scimm, smoother) -> for each seed: train
-    baseline / fixed / scimm / smoother students -> evaluate each on town12_short -> Table 2,
-    Tables 3-4 (mean over seeds, 95 % intervals, change against the baseline), Fig. 4, Fig. 5
+    the baseline / control / fixed / scimm / smoother students -> evaluate each on
+    town12_short and on the second set town12_second -> Table 2, Tables 3-4 with route-paired
+    intervals against the baseline and against the loss-matched control, the paper's claims,
+    DS per hazard type, the arms' ranking on both sets, Fig. 4, Fig. 5, loss curves
 
 Every stage is the function behind the subcommand a user would run by hand (its command
 line is printed), and each skips work whose outputs exist (collect and eval resume; a
 teacher with a manifest, a training with a checkpoint are not redone), so an interrupted
-reproduce resumes where it stopped. Stage wall times go to ``OUT/stages.json``; the tables,
-figures and a summary to ``OUT/README.md``.
+reproduce resumes where it stopped. Stage wall times go to ``OUT/stages.json``; the tables
+to ``OUT/tables`` (the second set's to ``OUT/tables/<set>``, model.arm_tables), figures and
+a summary to ``OUT/README.md``.
 """
 from __future__ import annotations
 
@@ -25,11 +28,26 @@ from harness.common.atomic import write_atomic
 from harness.common.errors import BadInput
 from harness.runs.evaluate import Backend
 
-# (arm, teacher of `sumo-scimm train`): the paper's three students, the first the baseline,
-# then the offline IMM smoother's (a teacher the paper does not have)
-ARMS = (("baseline", "none"), ("fixed", "fixed"), ("scimm", "scimm"), ("smoother", "smoother"))
+# (arm, teacher of `sumo-scimm train`): the baseline (expert labels only), the loss-matched
+# control (the expert's own labels given the teacher terms' weight, a constant mode target),
+# the paper's two teacher arms, and the offline IMM smoother's (a teacher the paper does not have)
+ARMS = (("baseline", "none"), ("control", "control"), ("fixed", "fixed"), ("scimm", "scimm"),
+        ("smoother", "smoother"))
 EVAL_SET = "town12_short"
+SECOND_SET = "town12_second"  # a second evaluation set, never used for a choice
 log = logging.getLogger(__name__)
+
+
+def select_arms(text: str | None) -> tuple[str, ...]:
+    """The arms of ``--arms a,b,...`` in ARMS order (None: all); BadInput for an unknown name."""
+    names = [a for a, _ in ARMS]
+    if text is None:
+        return tuple(names)
+    asked = [t.strip() for t in text.split(",")]
+    bad = [a for a in asked if a not in names]
+    if bad:
+        raise BadInput(f"--arms: unknown arm {bad[0]!r} (arms: {', '.join(names)}; e.g. --arms baseline,scimm)")
+    return tuple(a for a in names if a in asked)
 
 
 class Stages:
@@ -56,84 +74,141 @@ class Stages:
 
 
 def reproduce(out: Path, seeds: int, repetitions: int, epochs: int | None, backend: Backend = Backend(),
-              sets: tuple[str, str, str] = ("train", "val", EVAL_SET)) -> str:
+              sets: tuple[str, str, str] = ("train", "val", EVAL_SET), arms: tuple[str, ...] | None = None,
+              second: str | None = SECOND_SET) -> str:
     """Run (or finish) the experiment in ``out``; returns the Markdown summary. ``backend``:
     where the collect and eval stages run; ``sets``: the training, validation and evaluation
-    route sets (the paper's by default)."""
-    from harness.runs.evaluate import collect, evaluate
-    from harness.scoring.figures import waypoint_overlay
-    from harness.scoring.report import write_arm_report
-    from model.train import TrainConfig, train
-    from scimm.stage import dataset_episodes, make_teachers, write_tables
+    route sets (the paper's by default); ``arms``: the arms to run (names of ARMS, default
+    all); ``second``: a second evaluation set every student is evaluated on too (None: none)."""
+    from model.train import TrainConfig
+    from scimm.stage import dataset_episodes, make_teachers
     from scimm.teacher import METHODS as TEACHERS, is_complete
+    arms = tuple(arms or select_arms(None))
+    teacher = dict(ARMS)
+    for arm in arms:  # a teacher name train does not know: refused before any stage runs
+        try:
+            TrainConfig(data=out, out=out, teacher=teacher[arm])
+        except BadInput as exc:
+            raise BadInput(f"arm {arm!r}: {exc} (leave it out with --arms)") from None
     out.mkdir(parents=True, exist_ok=True)
     st = Stages(out)
     train_dir, val_dir = out / "data" / "train", out / "data" / "val"
-    w = f"--workers {backend.workers}"
-    train_set, val_set, eval_set = sets
-    st.run("collect train", f"collect --routes {train_set} --out {train_dir} {w} --repetitions {repetitions} --resume",
-           lambda: collect(train_set, train_dir, repetitions=repetitions, resume=True, backend=backend))
-    st.run("collect val", f"collect --routes {val_set} --out {val_dir} {w} --resume",
-           lambda: collect(val_set, val_dir, resume=True, backend=backend))
+    _collect(st, sets, train_dir, val_dir, repetitions, backend)
     _, episodes = dataset_episodes(train_dir)
     for method in TEACHERS:
         if not is_complete(train_dir, method):
             st.run(f"teacher {method}", f"teacher --data {train_dir} --method {method}",
                    lambda method=method: make_teachers(train_dir, episodes, (method,)))
-    runs: dict[str, list[Path]] = {arm: [] for arm, _ in ARMS}
+    label2 = None if second is None else Path(second).stem
+    runs: dict[str, list[Path]] = {arm: [] for arm in arms}
+    runs2: dict[str, list[Path]] = {arm: [] for arm in arms}
     for seed in range(seeds):
-        for arm, teacher in ARMS:
-            model_dir = out / "models" / f"{arm}_s{seed}"
-            ckpt = model_dir / "student.pt"
-            if not ckpt.is_file():
-                cfg = TrainConfig(data=train_dir, out=model_dir, teacher=teacher, val=val_dir, seed=seed,
-                                  cache_dir=out / "data" / "cache", **({"epochs": epochs} if epochs else {}))
-                st.run(f"train {arm} s{seed}", f"train --data {train_dir} --val {val_dir} --teacher {teacher} "
-                       f"--seed {seed} --out {model_dir} --epochs {cfg.epochs}", lambda cfg=cfg: train(cfg))
-            run_dir = out / "runs" / f"{arm}_s{seed}"
-            st.run(f"eval {arm} s{seed}", f"eval --routes {eval_set} --agent {ckpt} {w} --seed {seed} "
-                   f"--out {run_dir} --resume",
-                   lambda ckpt=ckpt, run_dir=run_dir, seed=seed: evaluate(
-                       eval_set, "student", str(ckpt), run_dir, seed=seed, resume=True, backend=backend))
-            runs[arm].append(run_dir)
+        for arm in arms:
+            ckpt = _train(st, out, arm, teacher[arm], seed, epochs, train_dir, val_dir)
+            runs[arm].append(_eval(st, ckpt, sets[2], out / "runs" / f"{arm}_s{seed}", arm, seed, None, backend))
+            if second is not None:
+                runs2[arm].append(_eval(st, ckpt, second, out / "runs" / label2 / f"{arm}_s{seed}", arm, seed,
+                                        label2, backend))
+    return _tables_and_summary(out, st, seeds, train_dir, episodes, runs,
+                               runs2 if second is not None else None, sets[2], label2)
 
+
+def _collect(st: Stages, sets: tuple[str, str, str], train_dir: Path, val_dir: Path, repetitions: int,
+             backend: Backend) -> None:
+    from harness.runs.evaluate import collect
+    w = f"--workers {backend.workers}"
+    train_set, val_set, _ = sets
+    st.run("collect train", f"collect --routes {train_set} --out {train_dir} {w} --repetitions {repetitions} --resume",
+           lambda: collect(train_set, train_dir, repetitions=repetitions, resume=True, backend=backend))
+    st.run("collect val", f"collect --routes {val_set} --out {val_dir} {w} --resume",
+           lambda: collect(val_set, val_dir, resume=True, backend=backend))
+
+
+def _train(st: Stages, out: Path, arm: str, teacher: str, seed: int, epochs: int | None,
+           train_dir: Path, val_dir: Path) -> Path:
+    """The checkpoint of ``arm``'s seed-``seed`` student, trained unless it exists."""
+    from model.train import TrainConfig, train
+    model_dir = out / "models" / f"{arm}_s{seed}"
+    ckpt = model_dir / "student.pt"
+    if not ckpt.is_file():
+        cfg = TrainConfig(data=train_dir, out=model_dir, teacher=teacher, val=val_dir, seed=seed,
+                          cache_dir=out / "data" / "cache", **({"epochs": epochs} if epochs else {}))
+        st.run(f"train {arm} s{seed}", f"train --data {train_dir} --val {val_dir} --teacher {teacher} "
+               f"--seed {seed} --out {model_dir} --epochs {cfg.epochs}", lambda: train(cfg))
+    return ckpt
+
+
+def _eval(st: Stages, ckpt: Path, route_set: str, run_dir: Path, arm: str, seed: int, on: str | None,
+          backend: Backend) -> Path:
+    """``run_dir``: the student ``ckpt`` evaluated (or its evaluation finished) on ``route_set``."""
+    from harness.runs.evaluate import evaluate
+    from model.arm_tables import eval_stage
+    st.run(eval_stage(arm, seed, on), f"eval --routes {route_set} --agent {ckpt} --workers {backend.workers} "
+           f"--seed {seed} --out {run_dir} --resume",
+           lambda: evaluate(route_set, "student", str(ckpt), run_dir, seed=seed, resume=True, backend=backend))
+    return run_dir
+
+
+def _tables_and_summary(out: Path, st: Stages, seeds: int, train_dir: Path, episodes, runs: dict[str, list[Path]],
+                        runs2: dict[str, list[Path]] | None, main: str, label2: str | None) -> str:
+    """Table 2, every arm table of both sets (model.arm_tables), the ranking, the figures
+    and ``OUT/README.md``; returns its text."""
+    from model.arm_tables import ranking, write_set_tables
+    from scimm.stage import write_tables
     tables = out / "tables"
     tables.mkdir(exist_ok=True)
     if not (train_dir / "teacher" / "table2.csv").is_file():
         st.run("table 2", f"teacher --data {train_dir} --method all", lambda: write_tables(train_dir, episodes))
     shutil.copy(train_dir / "teacher" / "table2.csv", tables / "table2.csv")
-    table34 = write_arm_report(runs, tables)
-    figs = _figures(out, train_dir, runs, st, waypoint_overlay)
-    text = _summary(out, seeds, st.times, table34, figs)
+    text, ds = write_set_tables(runs, tables)
+    parts = [f"## Tables 3-4 on {main}", "", text]
+    if runs2 is not None:
+        label = label2 if label2 != main else f"{label2} (second evaluation)"
+        text2, ds2 = write_set_tables(runs2, tables / str(label2))
+        rank = ranking({main: ds, label: ds2})
+        (tables / "ranking.md").write_text(rank + "\n")
+        parts += ["", f"## Tables 3-4 on the second set, {label}", "", text2, "", rank]
+    figs = _figures(out, train_dir, runs, seeds, st)
+    text = _summary(out, seeds, st.times, "\n".join(parts), figs, list(runs), main, label2)
     (out / "README.md").write_text(text)
     return text
 
 
-def _figures(out: Path, train_dir: Path, runs: dict[str, list[Path]], st: Stages, overlay) -> list[str]:
+def _figures(out: Path, train_dir: Path, runs: dict[str, list[Path]], seeds: int, st: Stages) -> list[str]:
     """Fig. 4 on the first episode with an obstacle bypass (Avoidance and Recovery show
-    there), Fig. 5 on the route where the seed-0 baseline's path curvature varied most."""
+    there), Fig. 5 on the route where the seed-0 reference arm's (the first arm's) path
+    curvature varied most, against SC-IMM (or the last arm), the loss curves of every seed."""
+    from harness.scoring.figures import waypoint_overlay
+    from scimm.plot import plot_posterior
     index = pd.read_csv(train_dir / "index.csv")
     bypass = index[index["situation"] == "bypass"]
     episode = str(bypass["episode"].iloc[0] if len(bypass) else index["episode"].iloc[0])
     fig4 = out / "fig4_mode_posterior.png"
-    from scimm.plot import plot_posterior
     st.run("fig 4", f"teacher plot --data {train_dir} --episode {episode} --out {fig4}",
            lambda: plot_posterior(train_dir / "episodes" / f"{episode}.npz", fig4, method="scimm"))
-    base = pd.read_csv(runs["baseline"][0] / "records.csv")
-    key = str(base.loc[base["curvature_variation"].idxmax(), "key"])
-    fig5 = overlay({"baseline": runs["baseline"][0], "scimm": runs["scimm"][0]}, key,
-                   out / "fig5_waypoint_overlay.png")
-    return [f"![Fig. 4, episode {episode}]({fig4.name})", f"![Fig. 5, route {key}]({fig5.name})"]
+    figs = [f"![Fig. 4, episode {episode}]({fig4.name})"]
+    first, other = next(iter(runs)), ("scimm" if "scimm" in runs else list(runs)[-1])
+    if other != first:
+        base = pd.read_csv(runs[first][0] / "records.csv")
+        key = str(base.loc[base["curvature_variation"].idxmax(), "key"])
+        fig5 = waypoint_overlay({first: runs[first][0], other: runs[other][0]}, key, out / "fig5_waypoint_overlay.png")
+        figs.append(f"![Fig. 5, route {key}]({fig5.name})")
+    from model.curves import plot_loss_curves
+    for seed in range(seeds):
+        made = plot_loss_curves({arm: out / "models" / f"{arm}_s{seed}" for arm in runs},
+                                out / f"loss_curves_seed{seed}.png")
+        figs.append(f"![Loss curves, seed {seed}]({Path(made).name})")
+    return figs
 
 
-def _summary(out: Path, seeds: int, times: dict[str, float], table34: str, figs: list[str]) -> str:
+def _summary(out: Path, seeds: int, times: dict[str, float], arm_tables: str, figs: list[str], arms: list[str],
+             main: str, second: str | None) -> str:
+    from model.arm_tables import stage_table
     t2 = pd.read_csv(out / "tables" / "table2.csv")
-    lines = [f"# sumo-scimm reproduce ({seeds} seed{'s' if seeds > 1 else ''})", "",
+    lines = [f"# sumo-scimm reproduce ({seeds} seed{'s' if seeds > 1 else ''}; arms {', '.join(arms)})", "",
              "## Table 2: teacher signals (training set)", "", _markdown(t2), "",
-             table34, "", "## Figures", "", *figs, "", "## Stage wall times [s]", "",
-             "| stage | wall s |", "| --- | --- |",
-             *(f"| {k} | {v:.0f} |" for k, v in times.items()),
-             f"| total | {sum(times.values()):.0f} |", ""]
+             arm_tables, "", "## Figures", "", *figs, "", "## Stage wall times [s]", "",
+             stage_table(times, arms, seeds, main, second), ""]
     return "\n".join(lines)
 
 

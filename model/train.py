@@ -2,9 +2,12 @@
 
     sumo-scimm train --data data/train --val data/val --teacher none  --out runs/student_baseline
     sumo-scimm train --data data/train --val data/val --teacher scimm --seed 1 --out runs/student_scimm
+    sumo-scimm train --data data/train --val data/val --teacher control --teacher-weight 0.5 --out runs/ctl
+    sumo-scimm train curves --runs baseline=runs/student_baseline scimm=runs/student_scimm --out curves.png
 
 Story: seed -> data (cached BEVs, teacher files) -> model -> optimizer -> loop (pure
-learning-rate schedule, validation loss averaged under no_grad after every epoch) -> save.
+learning-rate schedule, validation loss averaged under no_grad after every epoch, early
+stopping) -> save the chosen epoch's weights.
 
 Schedule (fixed, the same for every arm): AdamW (betas 0.9/0.95, weight decay 0.01 on
 matrices and kernels only), batch 128, learning rate linear warm-up over WARMUP_STEPS to
@@ -20,23 +23,47 @@ without memory cannot tell "just arrived" from "waited long enough", learns to s
 stopped and never starts again (in closed loop, a student trained on every frame stands
 55-76 % of the time and moves only when the 40 s creep rule fires). So each epoch draws:
 - no standing-and-staying frame while the expert waits at a stop sign (a third of them):
-  from one BEV the wait is pure ambiguity, while the frames that approach the sign (moving)
-  still teach the student to stop there and the speed input then tells it it has stopped;
+  the BEV stops drawing the stop line once the stop is made (harness.sim.stop_signs), but
+  the expert then still waits STOP_CLEAR and for cross traffic, and from one BEV that wait
+  is ambiguous, while the frames that approach the sign (moving) teach the student to stop
+  there and its starting-off frames (kept, below) to go once the line is gone. Kept as
+  before the stop-line rule: keeping these frames is a setting to compare on `val`;
 - KEEP_STAY of the other standing-and-staying frames (a new seeded subset every epoch);
 - every starting-off frame (standing, moved >= 0.5 m 2.5 s later) DEPART_REPEAT times;
 - every other frame once.
 
 Teacher arms (``--teacher fixed|scimm|smoother``) add the teacher terms of eq. 11 and the mode term
-of eq. 13 with model.loss.LossWeights; ``--teacher none`` is the baseline (l_scimm = l_mode
-= 0) and never opens teacher files. The validation loss is L_origin (expert path + speed
-waypoints, no augmentation) on the validation dataset, the same for every arm.
+of eq. 13 with model.loss.LossWeights (``weights``: ``--teacher-weight`` = l_scimm,
+``--mode-weight`` = l_mode); ``--teacher control`` adds the same terms with the same
+weights against the expert's own labels and a uniform mode target (model.data), so it
+differs from a teacher arm only in the targets' content; ``--teacher none`` is the
+baseline (l_scimm = l_mode = 0 whatever ``weights`` says) and never opens teacher files.
+The validation loss is L_origin (expert path + speed waypoints, no augmentation) on the
+validation dataset, the same for every arm.
+
+Training to convergence (early stopping on the validation set): the cosine schedule runs
+over at most ``epochs`` epochs; after every epoch the validation L_origin is computed and
+the weights of the best epoch so far are kept in memory (a strictly lower loss is a new
+best, so ties keep the earlier epoch); after ``patience`` epochs without a new best the
+training stops. The weights saved are the best epoch's; the manifest and ``history.json``
+say which epoch was chosen, its validation loss and why the training stopped
+(``stop_reason``: ``patience``; ``epochs``, all of them run; ``max_steps``, the step
+budget ran out; ``no_val``, no validation set, so the last epoch is saved, as before early
+stopping existed; ``no_finite_val``, the validation loss was never finite: the last epoch).
+Why this and not a schedule fitted per arm: the criterion is the one loss every arm shares
+(L_origin on ``val``), it needs no extra run per arm, and the evaluation routes never take
+part in it. The schedule is not shortened when the training stops early, so a chosen epoch
+far before ``epochs`` says a smaller ``epochs`` (a cosine that ends sooner) is worth a try
+on ``val``.
 
 Determinism: torch.manual_seed(seed), deterministic algorithms, a fixed thread count, and
-one numpy generator (seed) for sample order and views: same seed, same data -> same weights.
-The model saved is the one after the last step (not a "best" one).
+one numpy generator (seed) for sample order and views, drawn for every epoch up front (an
+early stop does not change the draws of the epochs run): same seed, same data -> same
+weights, and the same chosen epoch.
 """
 from __future__ import annotations
 
+import json
 import math
 import time
 from dataclasses import asdict, dataclass, field
@@ -46,15 +73,16 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
+from harness.common.atomic import write_atomic
 from harness.common.errors import BadInput
-from model.checkpoint import WEIGHTS_NAME, git_commit, save_checkpoint
-from model.data import TEACHER_METHODS, StudentData
+from model.checkpoint import HISTORY_NAME, WEIGHTS_NAME, git_commit, save_checkpoint
+from model.data import TEACHERS, StudentData
 from model.loss import BASELINE, LossWeights, total_loss
 from model.network import NetConfig, Student, n_params
 
 BATCH = 128
 LR = 1e-3  # peak learning rate
-MIN_LR = 2e-5  # at the last step
+MIN_LR = 2e-5  # at the last step of the last epoch (``epochs``)
 WARMUP_STEPS = 200
 WEIGHT_DECAY = 0.01
 GRAD_CLIP = 1.0
@@ -64,29 +92,38 @@ KEEP_STAY = 0.15  # share of standing frames (StudentData.staying) drawn per epo
 DEPART_REPEAT = 3  # draws per epoch of a starting-off frame (StudentData.departing)
 CUT_PROB = 0.1  # share of samples with the route cut ahead (route-end augmentation)
 CUT_RANGE = (4.0, 30.0)  # [m] the cut distance, uniform
-EPOCHS = 5  # default: about 3 min on 2 quiet cores for 67k frames (docs/results.md)
+EPOCHS = 5  # default maximum: about 3 min on 2 quiet cores for 67k frames (docs/results.md)
+PATIENCE = 2  # epochs without a new best validation L_origin before the training stops
 THREADS = 2  # torch threads (fixed, so results do not depend on the machine's core count)
 
 
 @dataclass(frozen=True)
 class TrainConfig:
+    """One training (the options of ``sumo-scimm train``): teacher ``none`` (baseline, l_scimm =
+    l_mode = 0 whatever ``weights`` says), ``control`` (the expert's own labels in the teacher
+    terms) or a teacher method; ``weights`` = LossWeights(scimm=--teacher-weight,
+    mode=--mode-weight); ``epochs`` the maximum, ``patience`` the early stopping on ``val``."""
+
     data: Path
     out: Path
-    teacher: str = "none"  # none | fixed | scimm | smoother
-    val: Path | None = None
+    teacher: str = "none"  # none | control | fixed | scimm | smoother
+    val: Path | None = None  # validation dataset: its L_origin chooses the epoch saved
     seed: int = 0
-    epochs: int = EPOCHS
+    epochs: int = EPOCHS  # at most; the cosine schedule spans them all
+    patience: int = PATIENCE  # early stopping (with ``val`` only)
     cache_dir: Path | None = None  # default: <data>/cache (BEV cache, shared by trainings)
     max_steps: int | None = None  # stop early (tests, benchmarks); None = all epochs
     threads: int = THREADS
     net: NetConfig = field(default_factory=NetConfig)
-    weights: LossWeights = field(default_factory=LossWeights)
+    weights: LossWeights = field(default_factory=LossWeights)  # eq. 10; ignored for teacher none
 
     def __post_init__(self) -> None:
-        if self.teacher not in ("none", *TEACHER_METHODS):
-            raise BadInput(f"--teacher must be none, {', '.join(TEACHER_METHODS)}, got {self.teacher!r}")
+        if self.teacher not in ("none", *TEACHERS):
+            raise BadInput(f"--teacher must be none, {', '.join(TEACHERS)}, got {self.teacher!r}")
         if self.epochs < 1:
             raise BadInput(f"--epochs must be >= 1, got {self.epochs}")
+        if self.patience < 1:
+            raise BadInput(f"--patience must be >= 1, got {self.patience}")
         if self.seed < 0:
             raise BadInput(f"--seed must be >= 0, got {self.seed}")
         if self.threads < 1:
@@ -160,11 +197,51 @@ def make_optimizer(model: Student) -> torch.optim.AdamW:
                               {"params": other, "weight_decay": 0.0}], lr=LR, betas=(0.9, 0.95))
 
 
+class Best:
+    """Early stopping's memory: the epoch with the lowest validation L_origin so far
+    (``val["loss"]`` of estimate_loss, path + speed waypoints [m^2]) and a copy of its weights."""
+
+    def __init__(self) -> None:
+        self.epoch, self.val, self.state = 0, math.inf, None
+
+    def update(self, model: Student, record: dict) -> None:
+        """Keep ``model``'s weights if the epoch of ``record`` beats the best so far."""
+        if record["val"]["loss"] < self.val:
+            self.epoch, self.val = record["epoch"], record["val"]["loss"]
+            self.state = {k: v.detach().clone() for k, v in model.state_dict().items()}
+
+    def waited(self, epoch: int) -> int:
+        """Epochs since the best one, at the end of ``epoch``."""
+        return epoch - self.epoch
+
+
+def run_epoch(model: Student, opt: torch.optim.Optimizer, data: StudentData,
+              plan: tuple[np.ndarray, np.ndarray, np.ndarray], n_steps: int,
+              weights: LossWeights, step: int, total: int, bar: tqdm) -> tuple[dict, int]:
+    """Up to ``n_steps`` optimizer steps over one epoch's plan (stopping at ``total``);
+    returns (mean train loss terms, step after the epoch)."""
+    order, views, cuts = plan
+    sums: dict[str, float] = {}
+    n = 0
+    for i in range(n_steps):
+        if step >= total:
+            break
+        idx = order[i * BATCH:(i + 1) * BATCH]
+        terms = train_step(model, opt, data.batch(idx, views[idx], cuts[idx]), weights, get_lr(step, total))
+        for k, v in terms.items():
+            sums[k] = sums.get(k, 0.0) + v.item()
+        step, n = step + 1, n + 1
+        bar.update(1)
+        bar.set_postfix(loss=f"{terms['loss'].item():.3f}")
+    return {k: v / max(1, n) for k, v in sums.items()}, step
+
+
 def train(cfg: TrainConfig) -> Path:
     """Train one student; returns the model checkpoint file (``cfg.out/student.pt``).
 
     One function on purpose, as nanoGPT's train.py: the story (seed, data, model and
-    optimizer, loop, save) reads top to bottom, its steps in small helpers above."""
+    optimizer, loop with early stopping, save) reads top to bottom, its steps in small
+    helpers above."""
     t0 = time.perf_counter()
     # seed: the network's initial weights come from torch's global generator,
     # seeded here (torch.nn layers take no generator); every other draw from rng below
@@ -187,49 +264,65 @@ def train(cfg: TrainConfig) -> Path:
     if min(steps) < 1:
         raise BadInput(f"{cfg.data} has {len(data)} frames, fewer than one batch of {BATCH} per epoch")
     total = sum(steps) if cfg.max_steps is None else min(cfg.max_steps, sum(steps))
-    tqdm.write(f"student: {n_params(model):,} parameters; {len(data):,} frames, {total} steps of {BATCH}, "
+    tqdm.write(f"student: {n_params(model):,} parameters; {len(data):,} frames, at most {total} steps of {BATCH}, "
                f"teacher {cfg.teacher}, seed {cfg.seed}")
-    # loop
-    step, history, t_loop, t_val = 0, [], time.perf_counter(), 0.0
+    # loop: one epoch, its validation loss, early stopping
+    step, history, best, stop = 0, [], Best(), "epochs"
     bar = tqdm(total=total, desc=f"train ({cfg.teacher})", unit="step", disable=None)
-    for epoch, (order, views, cuts) in enumerate(plans):
-        sums: dict[str, float] = {}
-        steps_per_epoch = steps[epoch]
-        for i in range(steps_per_epoch):
-            if step >= total:
-                break
-            idx = order[i * BATCH:(i + 1) * BATCH]
-            terms = train_step(model, opt, data.batch(idx, views[idx], cuts[idx]), weights, get_lr(step, total))
-            for k, v in terms.items():
-                sums[k] = sums.get(k, 0.0) + v.item()
-            step += 1
-            bar.update(1)
-            bar.set_postfix(loss=f"{terms['loss'].item():.3f}", epoch=epoch + 1)
-        n = max(1, min(steps_per_epoch, step - sum(steps[:epoch])))
-        record = {"epoch": epoch + 1, "step": step, "train": {k: v / n for k, v in sums.items()}}
+    for epoch, plan in enumerate(plans, start=1):
+        te = time.perf_counter()
+        bar.set_description(f"train ({cfg.teacher}) epoch {epoch}/{cfg.epochs}")
+        means, step = run_epoch(model, opt, data, plan, steps[epoch - 1], weights, step, total, bar)
+        record = {"epoch": epoch, "step": step, "lr": get_lr(step - 1, total), "train": means,
+                  "seconds": round(time.perf_counter() - te, 3)}
         if val is not None:
             tv = time.perf_counter()
             record["val"] = estimate_loss(model, val)
-            t_val += time.perf_counter() - tv
+            record["val_seconds"] = round(time.perf_counter() - tv, 3)
+            best.update(model, record)
         history.append(record)
         tqdm.write(_epoch_line(record))
+        if val is not None and best.waited(epoch) >= cfg.patience:
+            stop = "patience"
+            break
         if step >= total:
+            stop = "max_steps" if total < sum(steps) else "epochs"
             break
     bar.close()
-    train_s = time.perf_counter() - t_loop - t_val
-    # save
-    manifest = {
+    # the chosen epoch: the best on val (its weights back in the model), else the last
+    if val is None or best.state is None:  # no validation set, or no finite validation loss (diverged)
+        stop, chosen = "no_val" if val is None else "no_finite_val", history[-1]
+    else:
+        model.load_state_dict(best.state)
+        chosen = history[best.epoch - 1]
+    tqdm.write(f"chosen epoch {chosen['epoch']} of {len(history)} (stop: {stop})")
+    # save: history.json first, so a checkpoint file always has its history beside it
+    manifest = _manifest(cfg, data, val, weights, history, chosen, stop, time.perf_counter() - t0)
+    Path(cfg.out).mkdir(parents=True, exist_ok=True)
+    write_atomic(Path(cfg.out) / HISTORY_NAME, json.dumps({k: manifest[k] for k in HISTORY_KEYS}, indent=1) + "\n")
+    return save_checkpoint(Path(cfg.out) / WEIGHTS_NAME, model, manifest)
+
+
+HISTORY_KEYS = ("teacher", "seed", "loss_weights", "chosen_epoch", "chosen_val", "stop_reason", "history")
+
+
+def _manifest(cfg: TrainConfig, data: StudentData, val: StudentData | None, weights: LossWeights,
+              history: list[dict], chosen: dict, stop: str, wall_s: float) -> dict:
+    """What the checkpoint says of its training (``final_*``: the last epoch run; ``chosen_*``:
+    the epoch whose weights are saved)."""
+    train_s = sum(r["seconds"] for r in history)
+    return {
         "data": str(cfg.data), "data_hash": data.digest, "val": str(cfg.val) if cfg.val else None,
         "val_hash": val.digest if val else None, "teacher": cfg.teacher, "seed": cfg.seed,
-        "git_commit": git_commit(), "epochs": cfg.epochs, "steps": step, "batch": BATCH, "frames": len(data),
-        "loss_weights": asdict(weights), "schedule": {"lr": LR, "min_lr": MIN_LR, "warmup_steps": WARMUP_STEPS,
-                                                      "weight_decay": WEIGHT_DECAY, "aug_prob": AUG_PROB,
-                                                      "keep_stay": KEEP_STAY, "cut_prob": CUT_PROB},
-        "final_train": history[-1]["train"] if history else {}, "final_val": history[-1].get("val") if history else None,
-        "history": history, "threads": cfg.threads, "train_samples_per_s": step * BATCH / max(train_s, 1e-9),
-        "wall_s": time.perf_counter() - t0,
+        "git_commit": git_commit(), "epochs": cfg.epochs, "patience": cfg.patience, "epochs_run": len(history),
+        "steps": history[-1]["step"], "batch": BATCH, "frames": len(data), "loss_weights": asdict(weights),
+        "schedule": {"lr": LR, "min_lr": MIN_LR, "warmup_steps": WARMUP_STEPS, "weight_decay": WEIGHT_DECAY,
+                     "aug_prob": AUG_PROB, "keep_stay": KEEP_STAY, "cut_prob": CUT_PROB},
+        "final_train": history[-1]["train"], "final_val": history[-1].get("val"),
+        "chosen_epoch": chosen["epoch"], "chosen_val": chosen.get("val"), "stop_reason": stop,
+        "history": history, "threads": cfg.threads,
+        "train_samples_per_s": history[-1]["step"] * BATCH / max(train_s, 1e-9), "wall_s": wall_s,
     }
-    return save_checkpoint(Path(cfg.out) / WEIGHTS_NAME, model, manifest)
 
 
 def _epoch_line(r: dict) -> str:

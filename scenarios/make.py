@@ -67,6 +67,9 @@ SETS: dict[str, SetSpec] = {
     # model selection, town12, disjoint from evaluation and training
     "val": SetSpec((("town12", 30),), (270.0, 330.0), (285.0, 315.0), seed=1203,
                    exclude=("town12_short", "train")),
+    # a second evaluation set, town12_short's recipe with another seed: never used for a choice
+    "town12_second": SetSpec((("town12", 100),), (270.0, 330.0), (285.0, 315.0), seed=1204,
+                             exclude=("town12_short", "train", "val")),
 }
 
 # Ranges the builder draws hazard parameters from (inside the valid ranges of HAZARDS).

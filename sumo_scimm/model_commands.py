@@ -2,29 +2,69 @@
 from __future__ import annotations
 
 import argparse
+import math
 import os
 from pathlib import Path
 
 from harness.common.errors import BadInput
 from sumo_scimm.options import add_backend_options, backend_of
 
-# = model.train.EPOCHS (a test checks); importing model.train here would load torch for every
+# = model.train.EPOCHS, PATIENCE, ("none", *model.data.TEACHERS), model.loss.LossWeights()'s
+# scimm and mode (a test checks); importing model.train here would load torch for every
 # sumo-scimm command
 EPOCHS = 5
+PATIENCE = 2
+TEACHERS = ("none", "control", "fixed", "scimm", "smoother")
+TEACHER_WEIGHT, MODE_WEIGHT = 1.0, 0.1
 EVAL_SET = "town12_short"  # = model.reproduce.EVAL_SET
+SECOND_SET = "town12_second"  # = model.reproduce.SECOND_SET
+
+
+def _weight(text: str) -> float:
+    """argparse type of --teacher-weight and --mode-weight: a finite number >= 0."""
+    try:
+        value = float(text)
+    except ValueError:
+        value = math.nan
+    if not (math.isfinite(value) and value >= 0):
+        raise argparse.ArgumentTypeError(f"invalid weight {text!r}: must be a finite number >= 0")
+    return value
 
 
 def _train(args: argparse.Namespace) -> int:
+    if not args.data or not args.out:
+        raise BadInput("train needs --data DIR and --out DIR (or 'train curves' to plot trainings)")
+    given = [f"--{n}-weight" for n in ("teacher", "mode") if getattr(args, f"{n}_weight") is not None]
+    if args.teacher == "none" and given:
+        raise BadInput(f"{' and '.join(given)}: the baseline (--teacher none) has no teacher terms to weigh; "
+                       "drop the option or choose a --teacher")
+    from model.loss import LossWeights
     from model.train import TrainConfig, train  # torch is imported only when training
+    weights = LossWeights(scimm=TEACHER_WEIGHT if args.teacher_weight is None else args.teacher_weight,
+                          mode=MODE_WEIGHT if args.mode_weight is None else args.mode_weight)
     cfg = TrainConfig(data=Path(args.data), out=Path(args.out), teacher=args.teacher,
                       val=Path(args.val) if args.val else None, seed=args.seed, epochs=args.epochs,
-                      cache_dir=Path(args.cache) if args.cache else None)
+                      patience=args.patience, cache_dir=Path(args.cache) if args.cache else None, weights=weights)
     print(f"model checkpoint: {train(cfg)}")
     return 0
 
 
+def _curves(args: argparse.Namespace) -> int:
+    from model.curves import plot_loss_curves
+    runs: dict[str, Path] = {}
+    for item in args.runs:
+        arm, sep, folder = item.partition("=")
+        if not sep or not arm or not folder or arm in runs:
+            raise BadInput(f"--runs {item!r}: expected ARM=DIR with a new arm name, e.g. scimm=runs/student_scimm")
+        runs[arm] = Path(folder)
+    if not args.out.lower().endswith(".png"):
+        raise BadInput(f"--out {args.out!r} must end in .png")
+    print(plot_loss_curves(runs, Path(args.out)))
+    return 0
+
+
 def _reproduce(args: argparse.Namespace) -> int:
-    from model.reproduce import reproduce
+    from model.reproduce import reproduce, select_arms
     from scenarios import UnknownSet, resolve_set
     for name in ("seeds", "workers", "repetitions"):
         if getattr(args, name) < 1:
@@ -33,34 +73,56 @@ def _reproduce(args: argparse.Namespace) -> int:
         raise BadInput(f"--epochs must be >= 1 (got {args.epochs})")
     backend = backend_of(args)
     backend.check()
+    arms = select_arms(args.arms)
     sets = (args.train_routes, args.val_routes, args.eval_routes)
-    for name in sets:
+    second = None if args.second_routes == "none" else args.second_routes
+    for name in (*sets, *([second] if second else [])):
         try:
             resolve_set(name)
         except UnknownSet as exc:
             raise BadInput(str(exc)) from None
-    print(reproduce(Path(args.out), args.seeds, args.repetitions, args.epochs, backend, sets))
+    print(reproduce(Path(args.out), args.seeds, args.repetitions, args.epochs, backend, sets, arms, second))
     return 0
 
 
 def register(sub: argparse._SubParsersAction) -> None:
     """Add ``train`` and ``reproduce``."""
-    tr = sub.add_parser("train", help="train the student on a collected dataset (SPEC §7)",
+    tr = sub.add_parser("train", help="train the student on a collected dataset (SPEC §7); 'train curves' "
+                        "plots loss curves",
                         description="Train the student (BEV + target point + speed -> path and speed "
                         "waypoints) on a 'collect' folder, optionally with teacher labels.")
-    tr.add_argument("--data", required=True, help="training dataset folder (from 'sumo-scimm collect')")
-    tr.add_argument("--teacher", choices=("none", "fixed", "scimm", "smoother"), default="none",
-                    help="teacher labels from DATA/teacher/<method> (default none = baseline)")
-    tr.add_argument("--val", help="validation dataset folder; its L_origin is reported after every epoch")
+    tr.add_argument("--data", help="training dataset folder (from 'sumo-scimm collect'); required")
+    tr.add_argument("--teacher", choices=TEACHERS, default="none",
+                    help="teacher labels from DATA/teacher/<method>; control: the expert's own labels in the "
+                    "teacher terms (loss-matched control, no files) (default none = baseline)")
+    tr.add_argument("--val", help="validation dataset folder: its L_origin after every epoch chooses the epoch "
+                    "saved (early stopping); without it the last epoch is saved")
     tr.add_argument("--seed", type=int, default=0, help="seed of weights, sample order, views (default 0)")
-    tr.add_argument("--epochs", type=int, default=EPOCHS, help=f"passes over the data (default {EPOCHS})")
-    tr.add_argument("--out", required=True, help="output folder: student.pt and manifest.json")
+    tr.add_argument("--epochs", type=int, default=EPOCHS,
+                    help=f"passes over the data at most; the learning-rate schedule spans them (default {EPOCHS})")
+    tr.add_argument("--patience", type=int, default=PATIENCE,
+                    help=f"with --val: stop after P epochs without a new best validation loss (default {PATIENCE})")
+    tr.add_argument("--teacher-weight", type=_weight, metavar="L",
+                    help=f"lambda_scimm of eq. 10, the teacher terms' weight (default {TEACHER_WEIGHT}; "
+                    "not with --teacher none)")
+    tr.add_argument("--mode-weight", type=_weight, metavar="M",
+                    help=f"lambda_mode of eq. 10, the mode term's weight (default {MODE_WEIGHT}; "
+                    "not with --teacher none)")
+    tr.add_argument("--out", help="output folder: student.pt, manifest.json and history.json; required")
     tr.add_argument("--cache", help="BEV cache folder (default DATA/cache), shared by trainings on the same data")
     tr.set_defaults(func=_train)
+    trsub = tr.add_subparsers(dest="train_action", parser_class=type(tr), metavar="{curves}")
+    c = trsub.add_parser("curves", help="loss curves of trained students, one figure (validation path and "
+                         "speed losses, training loss, the chosen epoch ringed)")
+    c.add_argument("--runs", nargs="+", required=True, metavar="ARM=DIR",
+                   help="arm name and training folder (its history.json), e.g. baseline=runs/b scimm=runs/s")
+    c.add_argument("--out", required=True, help="figure file (.png)")
+    c.set_defaults(func=_curves)
 
     r = sub.add_parser("reproduce", help="the paper's whole experiment: collect, teachers, train, eval, tables",
-                       description="Collect -> teachers -> train baseline/fixed/scimm/smoother per seed -> eval on "
-                       f"{EVAL_SET} -> Tables 2-4, Fig. 4-5. Resumes: finished stages are skipped.")
+                       description="Collect -> teachers -> train baseline/control/fixed/scimm/smoother per seed -> "
+                       f"eval on {EVAL_SET} and {SECOND_SET} -> Tables 2-4 against the baseline and the control, "
+                       "Fig. 4-5. Resumes: finished stages are skipped.")
     r.add_argument("--seeds", type=int, default=1, help="training/evaluation seeds per arm (default 1)")
     r.add_argument("--workers", type=int, default=os.cpu_count() or 1, help="simulation processes (default: cores)")
     r.add_argument("--repetitions", type=int, default=1,
@@ -72,4 +134,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     r.add_argument("--train-routes", default="train", help="training route set (default train)")
     r.add_argument("--val-routes", default="val", help="validation route set (default val)")
     r.add_argument("--eval-routes", default=EVAL_SET, help=f"evaluation route set (default {EVAL_SET})")
+    r.add_argument("--arms", help="comma-separated arms to run, of baseline, control, fixed, scimm, smoother "
+                   "(default all five)")
+    r.add_argument("--second-routes", default=SECOND_SET,
+                   help=f"second evaluation set every student also drives (default {SECOND_SET}; none: skip)")
     r.set_defaults(func=_reproduce)

@@ -10,6 +10,7 @@ from controller.vehicle import EgoState
 from harness.sensors.bev import EGO_ROW, RES, SIZE, VEHICLES, BevRenderer
 from harness.sensors.bev_pixels import boxes_to_pixels, points_to_pixels
 from harness.sim.plan import build_plan
+from harness.sim.stop_signs import stop_passages
 from harness.sim.world import VEHICLE, Snapshot
 from scenarios import resolve_set
 from scenarios.routefile import read_routes
@@ -85,6 +86,7 @@ def test_a_float32_snapshot_is_drawn_as_its_float64_copy():
     snap64 = Snapshot(["v"], snap32.xy.astype(float), snap32.yaw.astype(float), snap32.speed,
                       snap32.size.astype(float), snap32.cls, math.nan)
     r = BevRenderer.for_town(route.town)
-    bev32, bev64 = r.draw(ego, snap32, plan, [], []), r.draw(ego, snap64, plan, [], [])
+    stops = [True] * len(stop_passages(plan))
+    bev32, bev64 = r.draw(ego, snap32, plan, [], [], stops), r.draw(ego, snap64, plan, [], [], stops)
     np.testing.assert_array_equal(bev32, bev64)
     assert bev64[VEHICLES].any()  # the car is drawn

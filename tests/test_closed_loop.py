@@ -20,6 +20,7 @@ from harness.sensors import bev as B
 from sumo_scimm.cli import main
 from harness.loop.episode import run_episode
 from harness.sim.plan import build_plan
+from harness.sim.stop_signs import stop_passages
 from harness.scoring.scores import rescore_results
 from harness.sim.world import World
 from scenarios import set_path
@@ -84,7 +85,7 @@ def test_pedestrian_crossing_in_front_is_seen_in_the_bev():
         ahead = [k for k, i in enumerate(f.snap.ids) if i.startswith("ped_hz")]
         if not ahead:
             return
-        bev = renderer.render(f.ego, f.snap, f.plan, f.lights, f.props)
+        bev = renderer.render(f.ego, f.snap, f.plan, f.lights, f.props, f.stops)
         # walker pixels in a corridor ahead of the ego (+-6 m wide, 2..30 m ahead)
         corridor = bev[B.WALKERS, B.EGO_ROW - 40:B.EGO_ROW - 3, 24:41]
         seen.append(int((corridor > 0).sum()))
@@ -137,7 +138,7 @@ def test_bev_places_an_actor_where_it_is(tmp_path):
     ax, ay = x + 15 * math.cos(yaw), y + 15 * math.sin(yaw)
     snap = Snapshot(["v"], np.array([[ax, ay]]), np.array([yaw]), np.zeros(1), np.array([[4.0, 2.0]]),
                     np.array([0]), math.nan)
-    img = B.BevRenderer.for_town("town12").render(ego, snap, plan, [], [])
+    img = B.BevRenderer.for_town("town12").render(ego, snap, plan, [], [], [True] * len(stop_passages(plan)))
     rows, cols = np.nonzero(img[B.VEHICLES] > 128)
     # expected centre: row 48 - 15 / 0.75 = 28, column 32 (64 / 2); box 4 m = 5.3 px tall;
     # cv2.fillPoly also fills the pixels its edges pass through: up to 1 px more per side
@@ -157,11 +158,12 @@ def test_a_repeated_scene_gets_its_last_frame_and_any_change_is_drawn_anew(monke
     draw = renderer.draw
     monkeypatch.setattr(renderer, "draw", lambda *a: drawn.append(1) or draw(*a))
 
-    def scene(ahead=15.0, cls=0, ego_yaw=yaw, props=(), lights=(), route_plan=plan):
+    def scene(ahead=15.0, cls=0, ego_yaw=yaw, props=(), lights=(), route_plan=plan, stops=None):
         ax, ay = x + ahead * math.cos(yaw), y + ahead * math.sin(yaw)
         snap = Snapshot(["v"], np.array([[ax, ay]]), np.array([yaw]), np.zeros(1), np.array([[4.0, 2.0]]),
                         np.array([cls]), math.nan)
-        return EgoState(x, y, ego_yaw, 0.0), snap, route_plan, list(lights), list(props)
+        stops = [True] * len(stop_passages(route_plan)) if stops is None else stops
+        return EgoState(x, y, ego_yaw, 0.0), snap, route_plan, list(lights), list(props), stops
 
     first = renderer.render(*scene())
     again = renderer.render(*scene())  # equal inputs in new objects: no new drawing
@@ -327,6 +329,7 @@ import math, os, numpy as np
 from controller.vehicle import EgoState
 from harness.sensors import bev as B
 from harness.sim.plan import build_plan
+from harness.sim.stop_signs import stop_passages
 from harness.sim.world import Snapshot
 from scenarios import set_path
 from scenarios.routefile import read_routes
@@ -338,7 +341,7 @@ snap = Snapshot([], np.zeros((0, 2)), np.zeros(0), np.zeros(0), np.zeros((0, 2))
 before = len(os.listdir("/proc/self/task"))
 for k in range(20):
     x, y, yaw = plan.path.pose(2.0 * k)
-    renderer.render(EgoState(x, y, yaw, 0.0), snap, plan, [], [])
+    renderer.render(EgoState(x, y, yaw, 0.0), snap, plan, [], [], [True] * len(stop_passages(plan)))
 print(before, len(os.listdir("/proc/self/task")))
 """
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)

@@ -65,7 +65,7 @@ def test_the_replayed_bev_equals_the_closed_loop_bev_bit_for_bit():
 def _draw(renderer: BevRenderer, log: dict, t: int, plan) -> np.ndarray:
     """The BEV of tick t drawn anew from the log's scene."""
     sc = scene_at(log, t)
-    return renderer.draw(sc.ego, sc.snap, plan, sc.lights, sc.props)
+    return renderer.draw(sc.ego, sc.snap, plan, sc.lights, sc.props, sc.stops)
 
 
 def test_a_run_replayed_with_its_own_agent_gives_back_its_logged_outputs(tmp_path, capsys):

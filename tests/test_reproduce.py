@@ -1,6 +1,7 @@
 """``sumo-scimm reproduce`` end to end on the four town12_smoke routes (collect, the three
-teachers, four students for one epoch, four closed-loop evaluations in real libsumo,
-Tables 2-4 and the figures), its resume, and its refusals of bad input."""
+teachers, three students for one epoch, their closed-loop evaluations in real libsumo on the
+evaluation set and on a second set, Tables 2-4 against both references, the claims, the
+ranking and the figures), its resume, and its refusals of bad input."""
 from __future__ import annotations
 
 import csv
@@ -15,24 +16,41 @@ SMOKE = ["--train-routes", "town12_smoke", "--val-routes", "town12_smoke", "--ev
 
 @pytest.mark.slow
 def test_reproduce_runs_every_stage_and_resumes_without_redoing_them(tmp_path, capsys):
+    arms = ["baseline", "control", "scimm"]  # both references and a teacher arm
     out = tmp_path / "rep"
-    argv = ["reproduce", "--seeds", "1", "--workers", "2", "--epochs", "1", "--out", str(out), *SMOKE]
+    argv = ["reproduce", "--seeds", "1", "--workers", "2", "--epochs", "1", "--out", str(out), *SMOKE,
+            "--arms", ",".join(reversed(arms)), "--second-routes", "town12_smoke"]
     assert main(argv) == 0
     stages = json.loads((out / "stages.json").read_text())
-    for arm in ("baseline", "fixed", "scimm", "smoother"):
+    for arm in arms:
         assert f"train {arm} s0" in stages
         assert f"eval {arm} s0" in stages
+        assert f"eval {arm} s0 on town12_smoke" in stages
         assert (out / "models" / f"{arm}_s0" / "student.pt").is_file()
-        with open(out / "runs" / f"{arm}_s0" / "records.csv", newline="") as f:
-            assert len(list(csv.DictReader(f))) == 4  # one record per smoke route
-    rows = list(csv.DictReader(open(out / "tables" / "table3.csv")))
-    assert [r["arm"] for r in rows] == ["baseline", "fixed", "scimm", "smoother"]
-    assert rows[0]["DS change %"] in ("0.0", "nan")
-    assert (out / "tables" / "table4.md").is_file()
+        for run in (out / "runs" / f"{arm}_s0", out / "runs" / "town12_smoke" / f"{arm}_s0"):
+            with open(run / "records.csv", newline="") as f:
+                assert len(list(csv.DictReader(f))) == 4  # one record per smoke route
+    assert not (out / "models" / "fixed_s0").exists(), "an arm left out of --arms is not trained"
+    for tables in (out / "tables", out / "tables" / "town12_smoke"):
+        rows = list(csv.DictReader(open(tables / "table3.csv")))
+        assert [r["arm"] for r in rows] == arms  # in the fixed order, the baseline first
+        assert rows[0]["DS change %"] in ("0.0", "nan")
+        assert (tables / "table4_common.md").is_file()
+        claims = list(csv.DictReader(open(tables / "claims.csv")))
+        assert {r["DS"] for r in claims} <= {"reproduced", "not reproduced", "undecided", "no interval"}
+        assert "| hazard | n | " + " | ".join(arms) + " |" in (tables / "hazard_ds.md").read_text()
+        rows = list(csv.DictReader(open(tables / "table3_vs_control.csv")))
+        assert [r["arm"] for r in rows] == ["control", "baseline", "scimm"]
+        assert {(r["arm"], r["against"]) for r in claims} == {("control", "baseline"), ("scimm", "baseline"),
+                                                             ("scimm", "control")}
+    assert "town12_smoke (second evaluation) rank" in (out / "tables" / "ranking.md").read_text()
     assert (out / "tables" / "table2.csv").is_file()
     assert (out / "fig4_mode_posterior.png").stat().st_size > 0
     assert (out / "fig5_waypoint_overlay.png").is_file()
-    assert "| total |" in (out / "README.md").read_text()
+    assert (out / "loss_curves_seed0.png").stat().st_size > 0
+    readme = (out / "README.md").read_text()
+    assert "| arm | seed | train s | eval town12_smoke s | eval town12_smoke s |" in readme
+    assert "Total: " in readme
     # a second run finds every output and trains nothing again
     weights = (out / "models" / "scimm_s0" / "student.pt").stat().st_mtime_ns
     capsys.readouterr()
@@ -40,6 +58,7 @@ def test_reproduce_runs_every_stage_and_resumes_without_redoing_them(tmp_path, c
     assert (out / "models" / "scimm_s0" / "student.pt").stat().st_mtime_ns == weights
     log = capsys.readouterr().err
     assert "== eval scimm s0" in log, "the stage lines are on stderr"
+    assert "== eval scimm s0 on town12_smoke" in log
     assert "== train" not in log
 
 
@@ -47,6 +66,8 @@ def test_reproduce_runs_every_stage_and_resumes_without_redoing_them(tmp_path, c
     (["--seeds", "0"], "--seeds must be >= 1"),
     (["--eval-routes", "no_such_set"], "unknown route set 'no_such_set'"),
     (["--address", "127.0.0.1:6379"], "--address needs --backend ray"),
+    (["--arms", "scimm,imm"], "--arms: unknown arm 'imm'"),
+    (["--second-routes", "no_such_set"], "unknown route set 'no_such_set'"),
 ])
 def test_reproduce_refuses_bad_input_before_writing_anything(tmp_path, capsys, extra, message):
     out = tmp_path / "rep"

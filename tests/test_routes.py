@@ -73,6 +73,19 @@ def test_no_training_or_validation_route_shares_start_and_end_with_evaluation():
     assert not (_ends("val") & _ends("train"))
 
 
+@pytest.mark.parametrize("other", ["town12_short", "train", "val"])
+def test_second_evaluation_set_shares_no_start_and_end_with_another_set(other):
+    second = _ends("town12_second")
+    assert len(second) == 100  # its own routes are distinct too
+    assert not (second & _ends(other))
+
+
+def test_second_evaluation_set_follows_town12_short_recipe_with_another_seed():
+    short, second = SETS["town12_short"], SETS["town12_second"]
+    assert (second.towns, second.length, second.target) == (short.towns, short.length, short.target)
+    assert second.seed not in {s.seed for n, s in SETS.items() if n != "town12_second"}
+
+
 def test_route_lengths_agree_with_sumo_driving_distance(short_routes):
     """Our length (lane and junction-internal shapes, lane changes blended) against the
     distance SUMO itself reports along the same edges. Tolerance 2 % (6 m): SUMO measures

@@ -7,6 +7,7 @@ One file per route run, ``episodes/<route>_rep<k>.npz``, holding per frame (F fr
     actor_offset (F+1,), actor_xy, actor_yaw, actor_speed, actor_size, actor_cls
                                                     the scene the BEV renderer draws (ragged)
     lights (F, P), props (F, Q, 5)                  route light states, harness-only boxes
+    stops (F, S) uint8                              1 while the BEV draws each route stop sign
     target_point (F, 2)                             ego frame (x forward, y left) [m]
     command, next_command (F,)                      CARLA RoadOption
     path (F, 20, 2)                                 label: the expert's path at 0..19 m of arc
@@ -107,7 +108,7 @@ class Recorder:
             "cue_recovery": float(abs(off_i) > 0.2 and abs(off_next) < abs(off_i)),
             "actor_xy": snap.xy.copy(), "actor_yaw": snap.yaw.copy(), "actor_speed": snap.speed.copy(),
             "actor_size": snap.size.copy(), "actor_cls": snap.cls.copy(),
-            "lights": list(f.lights), "props": [tuple(p) for p in f.props],
+            "lights": list(f.lights), "props": [tuple(p) for p in f.props], "stops": list(f.stops),
         })
 
     def arrays(self) -> dict[str, np.ndarray]:
@@ -140,6 +141,7 @@ class Recorder:
                            ("actor_size", (0, 2)), ("actor_cls", (0,))):
             out[key] = np.concatenate([fr[key] for fr in keep]) if keep else np.zeros(shape)
         out["lights"] = np.array([fr["lights"] for fr in keep], dtype=np.int8).reshape(len(keep), -1)
+        out["stops"] = np.array([fr["stops"] for fr in keep], dtype=np.uint8).reshape(len(keep), -1)
         n_props = max([len(fr["props"]) for fr in keep], default=0)
         props = np.full((len(keep), n_props, 5), np.nan)
         for j, fr in enumerate(keep):

@@ -18,6 +18,7 @@ import pandas as pd
 
 from controller.vehicle import EgoState
 from harness.common.atomic import write_atomic
+from harness.common.errors import BadInput
 from harness.sensors.bev import BevRenderer
 from harness.sim.plan import GlobalPlan, build_plan
 from harness.sim.world import Snapshot
@@ -46,22 +47,26 @@ class Episode:
     def __len__(self) -> int:
         return len(self.a["t"])
 
-    def scene(self, k: int) -> tuple[EgoState, Snapshot, list[int], list]:
+    def scene(self, k: int) -> tuple[EgoState, Snapshot, list[int], list, list[bool]]:
+        """What the renderer draws at frame k: ego, actors, light states, props, stop-sign states."""
         a = self.a
+        if "stops" not in a:
+            raise BadInput(f"{self.path} keeps no stop-sign state (collected before the BEV drew stop signs "
+                           "until obeyed): collect the dataset again with this sumo-scimm")
         lo, hi = int(a["actor_offset"][k]), int(a["actor_offset"][k + 1])
         snap = Snapshot([""] * (hi - lo), a["actor_xy"][lo:hi], a["actor_yaw"][lo:hi], a["actor_speed"][lo:hi],
                         a["actor_size"][lo:hi], a["actor_cls"][lo:hi].astype(int), math.nan)
         props = [tuple(p) for p in a["props"][k] if np.isfinite(p).all()] if a["props"].size else []
         ego = EgoState(float(a["x"][k]), float(a["y"][k]), float(a["yaw"][k]), float(a["v"][k]))
-        return ego, snap, [int(v) for v in a["lights"][k]], props
+        return ego, snap, [int(v) for v in a["lights"][k]], props, [bool(v) for v in a["stops"][k]]
 
     def bev(self, k: int, shift: float = 0.0, rot: float = 0.0) -> np.ndarray:
         """(9, 64, 64) uint8 BEV of frame k, seen from the ego moved by (shift [m] left, rot [rad])."""
-        ego, snap, lights, props = self.scene(k)
+        ego, snap, lights, props, stops = self.scene(k)
         if shift or rot:
             ego = EgoState(ego.x - math.sin(ego.yaw) * shift, ego.y + math.cos(ego.yaw) * shift,
                            ego.yaw + rot, ego.v)
-        return BevRenderer.for_town(self.town).render(ego, snap, self.plan, lights, props)
+        return BevRenderer.for_town(self.town).render(ego, snap, self.plan, lights, props, stops)
 
     def labels(self, k: int, shift: float = 0.0, rot: float = 0.0) -> dict[str, np.ndarray]:
         """Path (20, 2), speed waypoints (10, 2), target point (2,) in the (moved) ego frame."""

@@ -3,7 +3,9 @@
 Each tick, as in the leaderboard: the agent decides on the state after the last step
 (sensors built from one snapshot), the harness integrates the ego with the vehicle
 model and mirrors it into SUMO, hazards advance, SUMO steps, the new snapshot is read,
-contacts and route-ending criteria are evaluated, and everything goes into the log.
+contacts and route-ending criteria are evaluated, and everything goes into the log; the
+stop-sign state the next tick's BEV draws from (harness.sim.stop_signs) follows the logged
+route index and speed.
 
 An exception in the agent, a Control with NaN/inf, or a ``run_step`` that takes longer
 than the per-step deadline (``agent_timeout``, wall clock, default AGENT_TIMEOUT) ends the
@@ -31,6 +33,7 @@ from harness.loop.scene_log import SceneLog
 from harness.sim.contacts import overlaps
 from harness.sim.hazards import make_hazard
 from harness.sim.plan import GlobalPlan, build_plan, to_ego
+from harness.sim.stop_signs import StopTracker
 from harness.sim.traffic import BackgroundTraffic, RouteBubble
 from harness.sim.world import STATIC, Snapshot, World
 from scenarios.routefile import Route
@@ -82,6 +85,7 @@ class Frame:
     props: list  # harness-only static boxes (x, y, yaw, length, width)
     control: Control
     agent: object  # the agent instance (the collector reads the expert's own state)
+    stops: tuple[bool, ...]  # whether each route stop sign is still drawn (harness.sim.stop_signs)
 
 
 @dataclass
@@ -186,6 +190,7 @@ def _drive(run: _Run, route: Route, net, plan: GlobalPlan, world: World, rngs: t
     bev = BevRenderer.for_town(route.town)
     specs = _setup_agent(run, agent_name, agent_config, plan)
     ends = _RouteEnd(plan)
+    signs = StopTracker(plan)  # which stop signs the BEV still draws
     props = scene.props
     prop_boxes = np.array(props, dtype=float).reshape(-1, 5)  # (P, 5) x, y, yaw, length, width
     end = None
@@ -194,17 +199,17 @@ def _drive(run: _Run, route: Route, net, plan: GlobalPlan, world: World, rngs: t
     lights_now = world.light_states(lights)
     while end is None:
         s = ego.state
-        progress = ends.done.progress.index
+        progress, stops = ends.done.progress.index, signs.drawn
         try:
             inputs = sensor_inputs(specs, s, plan, progress, snap, (snap, lights_now, props),
-                                   lambda: bev.render(s, snap, plan, lights_now, props))
+                                   lambda: bev.render(s, snap, plan, lights_now, props, stops))
             control, pred = _agent_step(run.agent, inputs, world.time, agent_timeout, alarm)
         except BaseException as exc:  # noqa: BLE001 - an agent failure ends this route only
             if is_stop(exc, stops):  # the user's Ctrl-C or SIGTERM, not the agent's
                 raise
             run.loop_time = wallclock.perf_counter() - loop0
             return FAILED_AGENT, f"{type(exc).__name__}: {exc}", ends.done.rc
-        run.log.scene.add(world.time, s, progress, snap, lights_now, prop_boxes)  # the scene the agent saw
+        run.log.scene.add(world.time, s, progress, snap, lights_now, prop_boxes, stops)  # the scene the agent saw
         s = ego.step(control)
         ego_s = float(plan.s[progress])
         scene.advance(s, ego_s)
@@ -215,8 +220,9 @@ def _drive(run: _Run, route: Route, net, plan: GlobalPlan, world: World, rngs: t
         paused = s.v < criteria.Blocked.SPEED and any(h.timeout_active(ego_s, world.time) for h in scene.hazards)
         end = ends.update(s, world.time, paused)
         _log_tick(run.log, run.tick, world.time, s, control, pred, ends.done, snap, lights_now, prop_boxes)
+        signs.update(plan.s[ends.done.progress.index], s.v)  # the logged route index and speed
         if on_frame is not None:
-            on_frame(Frame(run.tick, s, snap, plan, pred, lights_now, props, control, run.agent))
+            on_frame(Frame(run.tick, s, snap, plan, pred, lights_now, props, control, run.agent, signs.drawn))
     run.loop_time = wallclock.perf_counter() - loop0
     return end, "", ends.done.rc
 

@@ -33,7 +33,7 @@ def render_route(route: Route, agent: str, agent_config: str | None, seed: int, 
         state["plan"] = f.plan
         if tick % every:
             return
-        img = colorize(bev.render(ego, f.snap, f.plan, f.lights, f.props), SCALE)
+        img = colorize(bev.render(ego, f.snap, f.plan, f.lights, f.props, f.stops), SCALE)
         if pred is not None:
             for pts, col in ((pred.path, (0, 255, 0)), (pred.speed_wps, (255, 0, 255))):
                 if pts is not None:

@@ -9,6 +9,9 @@ Per tick t (T ticks; the state BEFORE the tick's step, as the agent got it, wher
     scene_ego (T, 4)             ego x, y [m], yaw [rad], v [m/s], world frame
     scene_progress (T,)          dense route index the target point and command come from
     scene_lights (T, P) int8     state of each route light (harness.sim.world.TLS_CODES index)
+    scene_stops (T, S) uint8     1 while the BEV draws each route stop sign (the route's stop-sign
+                                 passages in order, harness.sim.stop_signs), 0 once the ego has
+                                 stopped in its zone or left it
     scene_offset (T+1,)          actors of tick t: rows scene_offset[t]:scene_offset[t+1] of
     scene_xy (N, 2), scene_yaw (N,), scene_size (N, 2), scene_cls (N,) int8
                                  centre [m], yaw [rad], length and width [m], class of every
@@ -31,7 +34,7 @@ from controller.vehicle import EgoState
 from harness.sim.world import Snapshot
 
 SCENE_KEYS = ("scene_t", "scene_ego", "scene_progress", "scene_lights", "scene_offset", "scene_xy", "scene_yaw",
-              "scene_size", "scene_cls", "scene_props")
+              "scene_size", "scene_cls", "scene_props", "scene_stops")
 
 
 @dataclass
@@ -40,15 +43,17 @@ class SceneLog:
 
     ticks: list[tuple] = field(default_factory=list)  # (timestamp, x, y, yaw, v, progress)
     lights: list[list[int]] = field(default_factory=list)
+    stops: list[tuple[bool, ...]] = field(default_factory=list)
     actors: list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]] = field(default_factory=list)
     props: np.ndarray = field(default_factory=lambda: np.zeros((0, 5)))
 
     def add(self, timestamp: float, ego: EgoState, progress: int, snap: Snapshot, lights: list[int],
-            props: np.ndarray) -> None:
+            props: np.ndarray, stops: tuple[bool, ...]) -> None:
         """The scene of one tick: what the agent was given at ``timestamp`` [s]; ``props``
-        (Q, 5) the route's static boxes."""
+        (Q, 5) the route's static boxes; ``stops`` which route stop signs the BEV draws."""
         self.ticks.append((timestamp, ego.x, ego.y, ego.yaw, ego.v, progress))
         self.lights.append(list(lights))
+        self.stops.append(tuple(stops))
         self.actors.append((snap.xy, snap.yaw, snap.size, snap.cls))
         self.props = props
 
@@ -61,6 +66,7 @@ class SceneLog:
                                                         for a in self.actors]) if n else np.zeros((0, *shape), dtype))
         return {"scene_t": tk[:, 0], "scene_ego": tk[:, 1:5], "scene_progress": tk[:, 5].astype(np.int32),
                 "scene_lights": np.array(self.lights, dtype=np.int8).reshape(n, -1) if n else np.zeros((0, 0), np.int8),
+                "scene_stops": np.array(self.stops, dtype=np.uint8).reshape(n, -1) if n else np.zeros((0, 0), np.uint8),
                 "scene_offset": np.concatenate([[0], np.cumsum(counts)]).astype(np.int64),
                 "scene_xy": cat(0, (2,), float), "scene_yaw": cat(1, (), float), "scene_size": cat(2, (2,), float),
                 "scene_cls": cat(3, (), np.int8), "scene_props": np.asarray(self.props, dtype=float).reshape(-1, 5)}
@@ -76,10 +82,12 @@ class TickScene:
     snap: Snapshot
     lights: list[int]
     props: list[tuple]
+    stops: tuple[bool, ...]  # whether each route stop sign is drawn
 
 
 def has_scene(log: dict) -> bool:
-    """Whether a log's arrays hold the scenes (logs of runs from before they were kept do not)."""
+    """Whether a log's arrays hold the scenes (logs of runs from before they were kept do not,
+    nor those from before the stop-sign state was kept: no ``scene_stops``)."""
     return all(k in log for k in SCENE_KEYS)
 
 
@@ -91,4 +99,5 @@ def scene_at(log: dict, t: int) -> TickScene:
                     log["scene_size"][lo:hi], log["scene_cls"][lo:hi].astype(int), math.nan)
     x, y, yaw, v = (float(c) for c in log["scene_ego"][t])
     return TickScene(float(log["scene_t"][t]), EgoState(x, y, yaw, v), int(log["scene_progress"][t]), snap,
-                     [int(s) for s in log["scene_lights"][t]], [tuple(p) for p in log["scene_props"]])
+                     [int(s) for s in log["scene_lights"][t]], [tuple(p) for p in log["scene_props"]],
+                     tuple(bool(s) for s in log["scene_stops"][t]))

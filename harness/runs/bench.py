@@ -133,8 +133,8 @@ def run_bench(routes_name: str = "town12_smoke", n_routes: int = 4, bev_frames: 
     renderer = BevRenderer.for_town(routes[0].town)
     t0 = time.perf_counter()
     for i in range(bev_frames):
-        ego, snap, plan, lights, props = snaps[i % len(snaps)]
-        renderer.draw(ego, snap, plan, lights, props)  # a drawing: render could reuse its last frame
+        ego, snap, plan, lights, props, stops = snaps[i % len(snaps)]
+        renderer.draw(ego, snap, plan, lights, props, stops)  # a drawing: render could reuse its last frame
     out["bev_render_ms"] = round(1000 * (time.perf_counter() - t0) / bev_frames, 4)
     out["bev_target_ms"] = 0.5
     return out
@@ -151,7 +151,7 @@ def _round(routes: list[Route], label: str, agent: str, agent_config: str | None
            network_between: Callable[[list[dict]], Callable[[], object]] | None, snaps: list) -> dict:
     """One pass of ``run_bench``'s closed-loop figures over ``routes``: means over the
     routes, each route's in ``per_route``; appends the sampled frames (ego, snapshot, plan,
-    lights, props) to ``snaps`` for the BEV figure."""
+    lights, props, stops) to ``snaps`` for the BEV figure."""
     per = [_time_route(route, route_seed(0, k), agent, agent_config, bare_inference, network_between, snaps)
            for k, route in enumerate(routes)]
 
@@ -217,11 +217,11 @@ def _time_route(route: Route, seed: int, agent: str, agent_config: str | None,
     bev = BevRenderer.for_town(route.town)
     inputs = []
     for f in kept:  # what the agent sees on the next tick (its progress: this tick's route index)
-        snaps.append((f.ego, f.snap, f.plan, f.lights, f.props))
+        snaps.append((f.ego, f.snap, f.plan, f.lights, f.props, f.stops))
         progress = res.log.columns["route_index"][f.tick - 1]
         inputs.append(sensor_inputs(f.agent.sensors(), f.ego, f.plan, progress, f.snap,
                                     (f.snap, f.lights, f.props),
-                                    lambda f=f: bev.render(f.ego, f.snap, f.plan, f.lights, f.props)))
+                                    lambda f=f: bev.render(f.ego, f.snap, f.plan, f.lights, f.props, f.stops)))
     if bare_inference is not None and inputs:  # right after the episode, as the libsumo replay
         out["bare_inference_ms"] = bare_inference(inputs)
     if network_between is not None and inputs:

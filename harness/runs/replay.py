@@ -104,7 +104,7 @@ def replay_route(job: ReplayJob) -> list[dict]:
         specs.append(spec)
     for t in range(n):
         sc = scene_at(log, t)
-        frame = bev.render(sc.ego, sc.snap, plan, sc.lights, sc.props)
+        frame = bev.render(sc.ego, sc.snap, plan, sc.lights, sc.props, sc.stops)
         for i, agent in enumerate(agents):
             if agent is None:
                 continue
@@ -202,9 +202,12 @@ def plan_replay(run: Path, agents: list[str], out: Path | None, routes: str | No
             raise BadInput(f"{run}: no log of route run {key} ({log}): finish the run with 'sumo-scimm eval --resume'")
         try:
             with np.load(log, allow_pickle=False) as z:
-                scene = has_scene(z.files)
+                scene, old = has_scene(z.files), "scene_t" in z.files and "scene_stops" not in z.files
         except (OSError, ValueError, zipfile.BadZipFile) as exc:
             raise BadInput(f"{log} is damaged ({type(exc).__name__}: {exc}): evaluate the reference again") from None
+        if old:
+            raise BadInput(f"{log} keeps no stop-sign state (a run from before the BEV drew stop signs until "
+                           "obeyed): evaluate the reference again with this sumo-scimm")
         if not scene:
             raise BadInput(f"{log} keeps no scene state (a run from before scenes were logged): evaluate "
                            "the reference again with this sumo-scimm")

@@ -30,6 +30,7 @@ from harness.scoring.statuses import STATUSES, ended_by_criterion
 from harness.sim.hazard_actor import SCENARIO_END, SCENARIO_TIMEOUT
 from harness.sim.hazards import TIMEOUT_HAZARDS
 from harness.sim.plan import GlobalPlan
+from harness.sim.stop_signs import stop_history, stop_passages
 from harness.sim.world import PEDESTRIAN, STATIC, VEHICLE
 from scenarios.routefile import Route
 
@@ -39,7 +40,6 @@ KEYS = ("collisions_layout", "collisions_pedestrian", "collisions_vehicle", "red
 
 COLLISION_TIME, COLLISION_RADIUS, EPSILON = 5.0, 5.0, 0.1  # [s], [m], [m/s]
 RED_LIGHT_DIST = 15.0  # lights farther than this from the ego are skipped [m]
-STOP_BEFORE, STOP_AFTER, STOP_SPEED = 6.0, 1.0, 0.1  # stop zone around the stop line [m], [m/s]
 OUTSIDE_MARGIN, WRONG_DEG = 0.5, 120.0  # [m], [deg]
 MIN_SPEED_CHECKPOINTS = {"lb2.0": 4, "lb2.1": 4, "b2d": 20}
 _RED = (0, 1)  # TLS_CODES indices of 'r' and 'R'
@@ -126,19 +126,16 @@ def red_lights(log: dict, plan: GlobalPlan, net) -> list[str]:
 
 
 def stop_signs(log: dict, plan: GlobalPlan) -> list[str]:
-    out = []
+    """A stop infraction for each stop-sign passage the ego reached and left without
+    stopping in its zone (harness.sim.stop_signs, the state the BEV draws from too)."""
+    passages = stop_passages(plan)
+    if not passages or len(log["v"]) == 0:
+        return []
     s_ego = plan.s[log["route_index"].astype(int)]
-    for p in plan.passages:
-        if p.state not in ("s", "w"):
-            continue
-        zone = (s_ego >= p.s_in - STOP_BEFORE) & (s_ego <= p.s_in + STOP_AFTER)
-        if not zone.any():
-            continue
-        left = np.flatnonzero(s_ego > p.s_in + STOP_AFTER)
-        if len(left) == 0:
-            continue  # never left the zone: no verdict (the Leaderboard waits too)
-        stopped = (log["v"][zone] < STOP_SPEED).any()
-        if not stopped:
+    h = stop_history(s_ego, log["v"], np.array([p.s_in for p in passages]))
+    out = []
+    for j, p in enumerate(passages):  # never left the zone: no verdict (the Leaderboard waits too)
+        if h.reached[-1, j] and h.left[-1, j] and not h.stopped[-1, j]:
             x, y, _ = plan.path.pose(p.s_in)
             out.append(f"Agent ran a stop with id={p.junction} at {loc(x, y)}")
     return out

@@ -16,10 +16,11 @@ Channels (uint8; dynamic ones 0 or 255, static ones anti-aliased at their edges)
     5 WALKERS    pedestrians
     6 OBSTACLES  static obstacles (parked cars, accidents, construction)
     7 LIGHTS     stop lines of the route's traffic lights: 255 red, 128 yellow, absent on green
-    8 STOPS      stop lines of stop-sign approaches
+    8 STOPS      stop lines of the route's stop signs, 255, each until the ego has made its stop
+                 (harness.sim.stop_signs: stopped in its zone, or left the zone; Roach's rule)
 
-Static channels (0, 1, 2, 8) are drawn once per town into a world-aligned map and
-cropped per frame with one ``warpAffine``; dynamic ones are filled polygons.
+Static channels (0, 1, 2) are drawn once per town into a world-aligned map and cropped per
+frame with one ``warpAffine``; dynamic ones are filled polygons and lines.
 """
 from __future__ import annotations
 
@@ -31,6 +32,7 @@ import cv2
 import numpy as np
 
 from harness.sensors.bev_pixels import boxes_to_pixels, points_to_pixels
+from harness.sim.stop_signs import stop_passages
 from harness.sim.world import PEDESTRIAN, STATIC, VEHICLE
 from sumo_nets import load_net
 
@@ -39,7 +41,7 @@ RES = 0.75  # [m / px]
 EGO_ROW = 48  # ego centre row (36 m ahead, 12 m behind)
 CHANNELS = ("road", "lanes", "walk", "route", "vehicles", "walkers", "obstacles", "lights", "stops")
 ROAD, LANES, WALK, ROUTE, VEHICLES, WALKERS, OBSTACLES, LIGHTS, STOPS = range(9)
-_STATIC = (ROAD, LANES, WALK, STOPS)
+_STATIC = (ROAD, LANES, WALK)
 _STATIC_INDEX = list(_STATIC)  # the static map's layers, in order
 MAP_PPM = 1.0 / RES  # static map resolution [px / m]
 RED, YELLOW = 255, 128
@@ -62,7 +64,7 @@ class BevRenderer:
         self.x0, self.y1 = x0 - 50.0, y1 + 50.0
         w = int((x1 - x0 + 100.0) * MAP_PPM) + 1
         h = int((y1 - y0 + 100.0) * MAP_PPM) + 1
-        layers = np.zeros((4, h, w), dtype=np.uint8)
+        layers = np.zeros((len(_STATIC), h, w), dtype=np.uint8)
         to_px = lambda pts: np.round(np.stack([(pts[:, 0] - self.x0) * MAP_PPM,  # noqa: E731
                                                (self.y1 - pts[:, 1]) * MAP_PPM], 1) * 16).astype(np.int32)
         for node in net.getNodes():
@@ -85,16 +87,9 @@ class BevRenderer:
                     cv2.fillPoly(layers[2], [pts], 255, cv2.LINE_AA, shift=4)
                 elif lane.allows("pedestrian") or fn == "crossing":
                     cv2.polylines(layers[2], [pts], False, 255, thick, cv2.LINE_AA, shift=4)
-        for edge in net.getEdges(withInternal=False):
-            for lane in edge.getLanes():
-                conns = [c for c in lane.getOutgoing() if c.getState() in ("s", "w")]
-                if conns:
-                    shape = np.asarray(lane.getShape(), dtype=float)[:, :2]
-                    cv2.polylines(layers[3], [to_px(_stop_line(shape, lane.getWidth()))], False, 255,
-                                  2, cv2.LINE_AA, shift=4)
-        self.map = np.ascontiguousarray(layers.transpose(1, 2, 0))  # (h, w, 4) for warpAffine
+        self.map = np.ascontiguousarray(layers.transpose(1, 2, 0))  # (h, w, 3) for warpAffine
         self._stop_lines: dict[tuple[str, int], np.ndarray] = {}
-        self._last = None  # (pose, lights and props key; plan; snapshot; frame) of the last drawing
+        self._last = None  # (pose, lights, props and stops key; plan; snapshot; frame) of the last drawing
         self.net = net
 
     @classmethod
@@ -102,7 +97,8 @@ class BevRenderer:
     def for_town(cls, town: str) -> "BevRenderer":
         return cls(town)
 
-    def _light_line(self, passage) -> np.ndarray:
+    def _passage_lines(self, passage) -> np.ndarray:
+        """(2 L, 2) world points [m]: the stop line across each car lane of the passage's approach."""
         key = (passage.from_edge, passage.link)
         if key not in self._stop_lines:
             edge = self.net.getEdge(passage.from_edge)
@@ -111,24 +107,28 @@ class BevRenderer:
             self._stop_lines[key] = np.vstack(lines) if lines else np.zeros((0, 2))
         return self._stop_lines[key]
 
-    def render(self, ego, snap, plan, lights: list[int], props: list) -> np.ndarray:
+    def render(self, ego, snap, plan, lights: list[int], props: list, stops) -> np.ndarray:
         """(9, SIZE, SIZE) uint8 BEV around ego (x, y, yaw, world frame): ``draw``'s frame.
 
         A call whose inputs equal the previous call's (same ego pose, actor boxes, light
-        states, props and plan: a standing ego in a still scene, 20 % of the shipped
+        states, props, stop states and plan: a standing ego in a still scene, 20 % of the shipped
         student's ticks on town12_short) gets a copy of the previous frame instead of a
         new drawing; ``draw`` is a pure function of these inputs, so the pixels are the
         same. Every call returns a new array: the caller may write into it."""
-        key = (ego.x, ego.y, ego.yaw, tuple(lights), tuple(map(tuple, props)))
+        key = (ego.x, ego.y, ego.yaw, tuple(lights), tuple(map(tuple, props)), tuple(map(bool, stops)))
         last = self._last
         if (last is not None and last[0] == key and last[1] is plan and _same_boxes(last[2], snap)):
             return last[3].copy()
-        out = self.draw(ego, snap, plan, lights, props)
+        out = self.draw(ego, snap, plan, lights, props, stops)
         self._last = (key, plan, snap, out.copy())
         return out
 
-    def draw(self, ego, snap, plan, lights: list[int], props: list) -> np.ndarray:
+    def draw(self, ego, snap, plan, lights: list[int], props: list, stops) -> np.ndarray:
         """(9, SIZE, SIZE) uint8 BEV around ego (x, y, yaw, world frame), drawn.
+
+        ``lights``: the state of each of the plan's traffic-light passages (TLS_CODES index);
+        ``stops``: whether each of its stop-sign passages (harness.sim.stop_signs.stop_passages)
+        is still to be drawn, one truth value each (harness.sim.stop_signs.StopTracker.drawn).
 
         The world points of the frame (route, stop lines) and the corners of its boxes become
         pixels in compiled calls (harness.sensors.bev_pixels: one for the points, one per group of
@@ -149,14 +149,18 @@ class BevRenderer:
         d = np.hypot(route[:, 0] - ego.x, route[:, 1] - ego.y)
         near = route[d < 45.0]  # the raster's corners are 43 m from the ego
         passages = [q for q in plan.passages if q.tls]
-        stops = {level: [self._light_line(p) for p, st in zip(passages, lights) if _TLS_LEVEL.get(st) == level]
+        signs = stop_passages(plan)
+        if len(stops) != len(signs):
+            raise ValueError(f"{len(stops)} stop states for the {len(signs)} stop signs of route {plan.route_id}")
+        lines = {level: [self._passage_lines(p) for p, st in zip(passages, lights) if _TLS_LEVEL.get(st) == level]
                  for level in (YELLOW, RED)}
+        lines[STOPS] = [self._passage_lines(p) for p, drawn in zip(signs, stops) if drawn]
         groups = [(snap.xy, snap.yaw, snap.size, snap.cls)]  # boxes, each group filled by its own calls
         if props:
             pa = np.array(props, dtype=float)
             groups.append((pa[:, :2], pa[:, 2], pa[:, 3:5], np.full(len(pa), STATIC)))
         raster = (ego.x, ego.y, c, s, SIZE / 2, float(EGO_ROW), RES)  # the pixel transform
-        parts = [near, *stops[YELLOW], *stops[RED]]
+        parts = [near, *lines[YELLOW], *lines[RED], *lines[STOPS]]
         all_px = points_to_pixels(np.concatenate(parts), *raster)
         ends = list(accumulate(len(p) for p in parts))
         px = [all_px[a:b] for a, b in zip([0] + ends, ends)]  # the pixels of each part
@@ -167,11 +171,11 @@ class BevRenderer:
         if len(near) >= 2:
             cv2.polylines(out[ROUTE], [px[0]], False, 255, max(1, int(round(2.0 / RES))), cv2.LINE_8, shift=4)
         i = 1
-        for level in (YELLOW, RED):  # red drawn over yellow
-            segments = [ln[a:a + 2] for ln in px[i:i + len(stops[level])] for a in range(0, len(ln), 2)]
+        for ch, key, level in ((LIGHTS, YELLOW, YELLOW), (LIGHTS, RED, RED), (STOPS, STOPS, 255)):  # red over yellow
+            segments = [ln[a:a + 2] for ln in px[i:i + len(lines[key])] for a in range(0, len(ln), 2)]
             if segments:
-                cv2.polylines(out[LIGHTS], segments, False, level, 2, cv2.LINE_8, shift=4)
-            i += len(stops[level])
+                cv2.polylines(out[ch], segments, False, level, 2, cv2.LINE_8, shift=4)
+            i += len(lines[key])
         for (_, _, _, cls), box_px in zip(groups, px[i:]):
             present = set(cls.tolist())
             for ch, kind in ((VEHICLES, VEHICLE), (WALKERS, PEDESTRIAN), (OBSTACLES, STATIC)):

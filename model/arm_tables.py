@@ -1,0 +1,196 @@
+"""The tables of ``sumo-scimm reproduce`` that compare its arms (model.reproduce):
+
+- Tables 3 and 4 with route-paired 95 % intervals against each reference arm (the baseline,
+  then the loss-matched control), on every route and on the routes every run completed
+  (harness.scoring.report; the files of the first reference have no suffix, the others
+  ``_vs_<reference>``);
+- the paper's claims, one verdict each from the paired interval of an arm against a
+  reference (``verdict``): teacher arm higher DS, lower Collision/km, lower each of the four
+  Table 4 metrics;
+- the DS of each hazard type, the arms side by side (``hazard_ds``);
+- the arms ranked by mean DS on each evaluation set, the sets side by side (``ranking``);
+- the stage wall times, one row per stage and per arm and seed (``stage_table``).
+"""
+from __future__ import annotations
+
+import csv
+import math
+from pathlib import Path
+
+from harness.scoring.report import TABLE4, fig, tables
+
+# the paper's claims on a teacher arm against a reference: (column, label, better direction)
+CLAIMS = (("DS", "DS higher", "higher"), ("Collision/km", "Collision/km lower", "lower"),
+          *((k, f"{label.split(' [')[0]} lower", "lower") for k, label in TABLE4))
+REPRODUCED, NOT_REPRODUCED, UNDECIDED, NO_INTERVAL = "reproduced", "not reproduced", "undecided", "no interval"
+
+
+def verdict(low: float, high: float, better: str) -> str:
+    """A paper claim's verdict from the 95 % interval [low, high] of an arm's paired
+    difference from a reference (arm - reference): ``reproduced`` if the interval excludes 0
+    on the side ``better`` ("higher" or "lower") says, ``not reproduced`` if it excludes 0
+    on the other side, ``undecided`` if it holds 0, ``no interval`` if a bound is not finite."""
+    if better not in ("higher", "lower"):
+        raise ValueError(f"better must be 'higher' or 'lower', got {better!r}")
+    if not (math.isfinite(low) and math.isfinite(high)):
+        return NO_INTERVAL
+    sign = 1.0 if better == "higher" else -1.0
+    lo, hi = sorted((sign * low, sign * high))
+    if lo > 0:
+        return REPRODUCED
+    if hi < 0:
+        return NOT_REPRODUCED
+    return UNDECIDED
+
+
+def _write_csv(path: Path, rows: list[dict]) -> None:
+    with open(path, "w", newline="") as fh:
+        w = csv.DictWriter(fh, fieldnames=list(rows[0]))
+        w.writeheader()
+        w.writerows(rows)
+
+
+def references(arms: list[str]) -> list[str]:
+    """The reference arms present: the baseline and the loss-matched control, in this order
+    (the first arm if neither runs)."""
+    refs = [a for a in ("baseline", "control") if a in arms]
+    return refs or arms[:1]
+
+
+def paired_tables(runs: dict[str, list[Path]], out: Path) -> tuple[str, dict[str, dict[str, list[dict]]]]:
+    """Tables 3 and 4 against every reference (module docstring) written to ``out``; returns
+    their Markdown and {reference: {table stem: CSV rows}}."""
+    out.mkdir(parents=True, exist_ok=True)
+    texts, rows = [], {}
+    for i, ref in enumerate(references(list(runs))):
+        ordered = {ref: runs[ref], **{a: f for a, f in runs.items() if a != ref}}
+        suffix = "" if i == 0 else f"_vs_{ref}"
+        texts.append(f"## Against the {ref} (paired intervals: arm - {ref})")
+        rows[ref] = {}
+        for stem, csv_rows, md in tables(ordered):
+            _write_csv(out / f"{stem}{suffix}.csv", csv_rows)
+            (out / f"{stem}{suffix}.md").write_text(md + "\n")
+            texts.append(md)
+            rows[ref][stem] = csv_rows
+    return "\n\n".join(texts), rows
+
+
+def claims(rows: dict[str, dict[str, list[dict]]], common: bool = False) -> tuple[list[dict], str]:
+    """The verdict of every paper claim (CLAIMS) for every arm against every reference, from
+    Tables 3 and 4 of ``paired_tables`` (on every route, or with ``common`` on the routes
+    every run completed); CSV rows and a Markdown table whose cells read ``difference
+    [interval] verdict``."""
+    where = "the routes every run completed" if common else "every route"
+    out, lines = [], [f"### The paper's claims ({where}; paired 95 % interval of arm - reference)", "",
+                      "| arm | against | " + " | ".join(label for _, label, _ in CLAIMS) + " |",
+                      "|" + " --- |" * (len(CLAIMS) + 2)]
+    refs = list(rows)
+    for ref, stems in rows.items():
+        by_arm: dict[str, dict] = {}
+        for stem in ("table3_common", "table4_common") if common else ("table3", "table4"):
+            for r in stems[stem]:
+                by_arm.setdefault(r["arm"], {}).update(r)
+        for arm, r in by_arm.items():
+            if arm == ref or arm in refs[:refs.index(ref)]:  # a reference against a later one: the reverse
+                continue
+            row, cells = {"arm": arm, "against": ref}, []
+            for key, label, better in CLAIMS:
+                d, lo, hi = r[f"{key} diff"], r[f"{key} diff ci95_low"], r[f"{key} diff ci95_high"]
+                v = verdict(lo, hi, better)
+                row.update({f"{key} diff": d, f"{key} diff ci95_low": lo, f"{key} diff ci95_high": hi, key: v})
+                cells.append(f"{d:+.4g} [{fig(lo)}, {fig(hi)}] {v}" if math.isfinite(d) else v)
+            out.append(row)
+            lines.append(f"| {arm} | {ref} | " + " | ".join(cells) + " |")
+    lines += ["", f"{REPRODUCED}: the interval excludes 0 in the paper's direction; {NOT_REPRODUCED}: it "
+              f"excludes 0 against it; {UNDECIDED}: it holds 0."]
+    return out, "\n".join(lines)
+
+
+def hazard_ds(per_hazard: list[dict], arms: list[str]) -> str:
+    """DS per hazard type (a route's first hazard), the arms side by side, from the rows of
+    the ``per_hazard`` table of harness.scoring.b2d_tables; ``n``: route runs of the type per arm."""
+    lines = ["### DS per hazard type (route runs of an arm's seeds pooled)", "",
+             "| hazard | n | " + " | ".join(arms) + " |", "|" + " --- |" * (len(arms) + 2)]
+    for r in per_hazard:
+        counts = sorted({r[f"{a} n"] for a in arms})
+        n = str(counts[0]) if len(counts) == 1 else "/".join(str(r[f"{a} n"]) for a in arms)
+        cells = [f"{r[f'{a} DS']:.1f}" if math.isfinite(r[f"{a} DS"]) else "-" for a in arms]
+        lines.append(f"| {r['hazard']} | {n} | " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
+def ranking(ds: dict[str, dict[str, float]]) -> str:
+    """The arms ranked by mean DS on each evaluation set, the sets side by side: ``ds`` is
+    {set: {arm: mean DS}}; rank 1 is the highest DS, equal DS share the better rank; rows in
+    the first set's order of rank (then name), an arm missing on a set shows ``-``."""
+    sets = list(ds)
+    arms = sorted({a for v in ds.values() for a in v}, key=lambda a: (-ds[sets[0]].get(a, -math.inf), a))
+    lines = ["### Arms ranked by mean DS on each evaluation set", "",
+             "| arm | " + " | ".join(f"{s} DS | {s} rank" for s in sets) + " |", "|" + " --- |" * (2 * len(sets) + 1)]
+    for arm in arms:
+        cells = []
+        for s in sets:
+            if arm in ds[s] and math.isfinite(ds[s][arm]):
+                rank = 1 + sum(v > ds[s][arm] for v in ds[s].values() if math.isfinite(v))
+                cells += [f"{ds[s][arm]:.2f}", str(rank)]
+            else:
+                cells += ["-", "-"]
+        lines.append(f"| {arm} | " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
+def stage_table(times: dict[str, float], arms: list[str], seeds: int, main: str, second: str | None) -> str:
+    """Stage wall times [s] as Markdown: the shared stages (collect, teachers, tables,
+    figures) one a row, then one row per arm and seed with its training and its evaluation
+    on the main set (``main``) and the second (``second``, None: none), then the total of
+    every stage in ``times``."""
+    sets = [(main, None)] + ([(second, second)] if second else [])
+    per_arm = {f"train {a} s{k}" for a in arms for k in range(seeds)}
+    per_arm |= {eval_stage(a, k, on) for a in arms for k in range(seeds) for _, on in sets}
+    lines = ["| stage | wall s |", "| --- | --- |"]
+    lines += [f"| {k} | {v:.0f} |" for k, v in times.items() if k not in per_arm]
+    lines += ["", "| arm | seed | train s | " + " | ".join(f"eval {label} s" for label, _ in sets) + " |",
+              "|" + " --- |" * (len(sets) + 3)]
+    cell = lambda name: f"{times[name]:.0f}" if name in times else "-"  # noqa: E731
+    for a in arms:
+        for k in range(seeds):
+            evals = [cell(eval_stage(a, k, on)) for _, on in sets]
+            lines.append(f"| {a} | {k} | {cell(f'train {a} s{k}')} | " + " | ".join(evals) + " |")
+    total = sum(times.values())
+    lines += ["", f"Total: {total:.0f} s ({total / 60:.1f} min), every stage of stages.json (a stage "
+              "found finished keeps the time it took when it ran)."]
+    return "\n".join(lines)
+
+
+def eval_stage(arm: str, seed: int, on: str | None = None) -> str:
+    """The stage name of arm ``arm``'s seed-``seed`` evaluation: on the main evaluation set
+    (``on`` None) or on the second set named ``on``."""
+    return f"eval {arm} s{seed}" + (f" on {on}" if on else "")
+
+
+def write_set_tables(runs: dict[str, list[Path]], out: Path) -> tuple[str, dict[str, float]]:
+    """Every table of the module docstring for the arms' runs on one evaluation set, written
+    to ``out`` (``table{3,4}[_common][_vs_control]``, ``b2d``, ``per_hazard``,
+    ``claims[_common]``, ``hazard_ds``, as .csv and .md); returns their Markdown and {arm: mean DS} (Table 3's)."""
+    from harness.scoring.b2d_tables import b2d_tables
+    text, rows = paired_tables(runs, out)
+    parts = [text]
+    extra = b2d_tables(runs)
+    for stem, csv_rows, md in extra:
+        _write_csv(out / f"{stem}.csv", csv_rows)
+        (out / f"{stem}.md").write_text(md + "\n")
+    for i, common in enumerate((False, True)):
+        claim_rows, claim_md = claims(rows, common)
+        if claim_rows:
+            stem = "claims_common" if common else "claims"
+            _write_csv(out / f"{stem}.csv", claim_rows)
+            (out / f"{stem}.md").write_text(claim_md + "\n")
+            parts.insert(i, claim_md)
+    per_hazard = next((r for stem, r, _ in extra if stem == "per_hazard"), None)
+    if per_hazard:
+        md = hazard_ds(per_hazard, list(runs))
+        (out / "hazard_ds.md").write_text(md + "\n")
+        parts.append(md)
+    parts += [md for stem, _, md in extra if stem == "b2d"]
+    first = next(iter(rows.values()))["table3"]
+    return "\n\n".join(parts), {r["arm"]: float(r["DS"]) for r in first}

@@ -1,0 +1,120 @@
+"""The arm tables of ``sumo-scimm reproduce`` (model.arm_tables): claim verdicts from
+hand-made intervals, the ranking of arms on two sets, the claims table from hand-made
+Table 3/4 rows, DS per hazard side by side, the stage-time table, and the ``--arms`` choice."""
+from __future__ import annotations
+
+import math
+
+import pytest
+
+from harness.common.errors import BadInput
+from model.arm_tables import (CLAIMS, NO_INTERVAL, NOT_REPRODUCED, REPRODUCED, UNDECIDED, claims, eval_stage,
+                              hazard_ds, ranking, references, stage_table, verdict)
+from model.reproduce import SECOND_SET, select_arms
+
+
+@pytest.mark.parametrize("low, high, better, expected", [
+    (0.5, 3.0, "higher", REPRODUCED),  # DS up, interval above 0
+    (-3.0, -0.5, "higher", NOT_REPRODUCED),  # DS down, interval below 0
+    (-0.5, 3.0, "higher", UNDECIDED),
+    (-3.0, -0.5, "lower", REPRODUCED),  # Collision/km down
+    (0.5, 3.0, "lower", NOT_REPRODUCED),
+    (-0.1, 0.2, "lower", UNDECIDED),
+    (0.0, 2.0, "higher", UNDECIDED),  # a bound on 0 does not exclude it
+    (-2.0, 0.0, "lower", UNDECIDED),
+    (math.nan, 1.0, "higher", NO_INTERVAL),
+    (-math.inf, -1.0, "lower", NO_INTERVAL),
+])
+def test_verdict_reads_the_side_of_zero_the_interval_lies_on(low, high, better, expected):
+    assert verdict(low, high, better) == expected
+
+
+def test_verdict_refuses_an_unknown_direction():
+    with pytest.raises(ValueError, match="higher"):
+        verdict(1.0, 2.0, "up")
+
+
+def test_claims_are_the_papers_six_in_its_directions():
+    assert [(k, b) for k, _, b in CLAIMS] == [
+        ("DS", "higher"), ("Collision/km", "lower"), ("steering_jerk_moving", "lower"),
+        ("longitudinal_jerk_moving", "lower"), ("curvature_variation_wps", "lower"), ("speed_variation_kmh", "lower")]
+
+
+def _row(arm: str, diff: float, low: float, high: float) -> dict:
+    """A Table 3 + 4 CSV row whose every figure has the same difference and interval."""
+    row = {"arm": arm}
+    for key, _, _ in CLAIMS:
+        row.update({f"{key} diff": diff, f"{key} diff ci95_low": low, f"{key} diff ci95_high": high})
+    return row
+
+
+def test_claims_table_marks_each_arm_against_each_reference_once():
+    rows = {"baseline": {"table3": [_row("baseline", 0, 0, 0), _row("control", 1.0, 0.5, 1.5),
+                                    _row("scimm", 2.0, 1.0, 3.0)], "table4": []},
+            "control": {"table3": [_row("control", 0, 0, 0), _row("baseline", -1.0, -1.5, -0.5),
+                                   _row("scimm", -0.2, -1.0, 0.6)], "table4": []}}
+    out, md = claims(rows)
+    # baseline against control is control against baseline reversed: left out
+    assert [(r["arm"], r["against"]) for r in out] == [("control", "baseline"), ("scimm", "baseline"),
+                                                        ("scimm", "control")]
+    assert out[1]["DS"] == REPRODUCED and out[1]["Collision/km"] == NOT_REPRODUCED  # +2 [1, 3]: DS up, collisions up
+    assert out[2]["DS"] == UNDECIDED and out[2]["speed_variation_kmh"] == UNDECIDED
+    assert "| scimm | baseline | +2 [1, 3] reproduced | +2 [1, 3] not reproduced |" in md
+    common = {ref: {f"{k}_common": v for k, v in stems.items()} for ref, stems in rows.items()}
+    out_common, md_common = claims(common, common=True)
+    assert out_common == out and "(the routes every run completed;" in md_common
+
+
+def test_ranking_puts_the_sets_side_by_side_in_the_first_sets_order():
+    md = ranking({"town12_short": {"baseline": 44.5, "fixed": 51.5, "scimm": 54.0},
+                  "town12_second": {"baseline": 52.6, "fixed": 53.9, "scimm": 53.5}})
+    lines = md.splitlines()
+    assert lines[2] == "| arm | town12_short DS | town12_short rank | town12_second DS | town12_second rank |"
+    assert lines[4:] == ["| scimm | 54.00 | 1 | 53.50 | 2 |", "| fixed | 51.50 | 2 | 53.90 | 1 |",
+                         "| baseline | 44.50 | 3 | 52.60 | 3 |"]
+
+
+def test_ranking_shares_a_rank_on_a_tie_and_marks_a_missing_arm():
+    md = ranking({"a": {"x": 50.0, "y": 50.0, "z": 40.0}, "b": {"x": 10.0, "z": 20.0}})
+    assert md.splitlines()[4:] == ["| x | 50.00 | 1 | 10.00 | 2 |", "| y | 50.00 | 1 | - | - |",
+                                   "| z | 40.00 | 3 | 20.00 | 1 |"]
+
+
+def test_hazard_ds_puts_the_arms_side_by_side():
+    per_hazard = [{"hazard": "StopSignJunction", "baseline SR": 10.0, "baseline DS": 41.25, "baseline n": 12,
+                   "scimm SR": 50.0, "scimm DS": 60.0, "scimm n": 12},
+                  {"hazard": "unknown", "baseline SR": math.nan, "baseline DS": math.nan, "baseline n": 0,
+                   "scimm SR": 0.0, "scimm DS": 5.0, "scimm n": 3}]
+    assert hazard_ds(per_hazard, ["baseline", "scimm"]).splitlines()[2:] == [
+        "| hazard | n | baseline | scimm |", "| --- | --- | --- | --- |",
+        "| StopSignJunction | 12 | 41.2 | 60.0 |", "| unknown | 0/3 | - | 5.0 |"]
+
+
+def test_stage_table_has_a_row_per_arm_and_seed_and_the_total():
+    times = {"collect train": 300.0, "teacher scimm": 7.0, "train baseline s0": 400.0, "eval baseline s0": 200.0,
+             eval_stage("baseline", 0, SECOND_SET): 150.0, "train scimm s0": 380.0, "eval scimm s0": 180.0,
+             "fig 4": 3.0}
+    md = stage_table(times, ["baseline", "scimm"], 1, "town12_short", SECOND_SET)
+    assert "| collect train | 300 |" in md and "| fig 4 | 3 |" in md and "| train scimm s0 |" not in md
+    assert "| arm | seed | train s | eval town12_short s | eval town12_second s |" in md
+    assert "| baseline | 0 | 400 | 200 | 150 |" in md
+    assert "| scimm | 0 | 380 | 180 | - |" in md  # its second-set evaluation has not run
+    assert "Total: 1620 s (27.0 min)" in md
+
+
+def test_references_are_baseline_then_control_else_the_first_arm():
+    assert references(["baseline", "control", "scimm"]) == ["baseline", "control"]
+    assert references(["control", "fixed"]) == ["control"]
+    assert references(["fixed", "scimm"]) == ["fixed"]
+
+
+def test_arms_are_chosen_in_their_fixed_order_and_an_unknown_name_is_refused():
+    assert select_arms(None) == ("baseline", "control", "fixed", "scimm", "smoother")
+    assert select_arms("scimm, baseline") == ("baseline", "scimm")
+    with pytest.raises(BadInput, match="unknown arm 'imm'"):
+        select_arms("baseline,imm")
+
+
+def test_cli_second_set_is_the_reproduce_default():
+    from sumo_scimm import model_commands
+    assert model_commands.SECOND_SET == SECOND_SET

@@ -104,7 +104,8 @@ class StudentAgent(AutonomousAgent):
 
 
 # The students shipped with the package (``sumo-scimm reproduce`` makes them; each folder
-# holds student.pt and the manifest saying how it was made): ``--agent baseline|fixed|scimm``.
+# holds student.pt and the manifest saying how it was made):
+# ``--agent baseline|control|fixed|scimm|smoother``.
 SHIPPED = Path(__file__).parent / "checkpoints"
 
 
@@ -132,9 +133,17 @@ class BaselineStudent(ShippedStudent):
     ARM = "baseline"
 
 
+class ControlStudent(ShippedStudent):
+    ARM = "control"
+
+
 class FixedStudent(ShippedStudent):
     ARM = "fixed"
 
 
 class ScimmStudent(ShippedStudent):
     ARM = "scimm"
+
+
+class SmootherStudent(ShippedStudent):
+    ARM = "smoother"

@@ -2,9 +2,11 @@
 
     collect train + val (expert) -> teachers (fixed, scimm, smoother) -> for each seed: train
     the baseline / control / fixed / scimm / smoother students -> evaluate each on
-    town12_short and on the second set town12_second -> Table 2, Tables 3-4 with route-paired
+    town12_short and on the second set town12_second -> every seed's students fed the
+    expert's inputs on town12_short (replay) -> Table 2, Tables 3-4 with route-paired
     intervals against the baseline and against the loss-matched control, the paper's claims,
-    DS per hazard type, the arms' ranking on both sets, Fig. 4, Fig. 5, loss curves
+    DS per hazard type, the arms' ranking on both sets, the replay table, Fig. 4, Fig. 5,
+    loss curves
 
 Every stage is the function behind the subcommand a user would run by hand (its command
 line is printed), and each skips work whose outputs exist (collect and eval resume; a
@@ -102,6 +104,7 @@ def reproduce(out: Path, seeds: int, repetitions: int, epochs: int | None, backe
     label2 = None if second is None else Path(second).stem
     runs: dict[str, list[Path]] = {arm: [] for arm in arms}
     runs2: dict[str, list[Path]] = {arm: [] for arm in arms}
+    replays = []
     for seed in range(seeds):
         for arm in arms:
             ckpt = _train(st, out, arm, teacher[arm], seed, epochs, train_dir, val_dir)
@@ -109,8 +112,10 @@ def reproduce(out: Path, seeds: int, repetitions: int, epochs: int | None, backe
             if second is not None:
                 runs2[arm].append(_eval(st, ckpt, second, out / "runs" / label2 / f"{arm}_s{seed}", arm, seed,
                                         label2, backend))
+        if len(arms) > 1:
+            replays.append(f"### Seed {seed}\n\n" + _replay(st, out, arms, seed, sets[2], backend))
     return _tables_and_summary(out, st, seeds, train_dir, episodes, runs,
-                               runs2 if second is not None else None, sets[2], label2)
+                               runs2 if second is not None else None, sets[2], label2, replays)
 
 
 def _collect(st: Stages, sets: tuple[str, str, str], train_dir: Path, val_dir: Path, repetitions: int,
@@ -149,8 +154,30 @@ def _eval(st: Stages, ckpt: Path, route_set: str, run_dir: Path, arm: str, seed:
     return run_dir
 
 
+def _replay(st: Stages, out: Path, arms: tuple[str, ...], seed: int, route_set: str, backend: Backend) -> str:
+    """Every arm's seed-``seed`` student fed the identical inputs of the expert's run on
+    ``route_set`` (seed 0, evaluated once), compared with the first arm route-paired
+    (harness.runs.replay: output stability without the exposure of each arm's own drive);
+    returns the Markdown table of ``OUT/replay/s<seed>``."""
+    from harness.runs.evaluate import evaluate
+    from harness.runs.replay import replay
+    ref = out / "runs" / "expert_s0"
+    st.run("eval expert s0", f"eval --routes {route_set} --agent expert --workers {backend.workers} --seed 0 "
+           f"--out {ref} --resume", lambda: evaluate(route_set, "expert", None, ref, seed=0, resume=True,
+                                                      backend=backend))
+    rdir = out / "replay" / f"s{seed}"
+    if not (rdir / "table.md").is_file():
+        shutil.rmtree(rdir, ignore_errors=True)  # an interrupted replay starts again
+        ckpts = [str(out / "models" / f"{arm}_s{seed}" / "student.pt") for arm in arms]
+        st.run(f"replay s{seed}", f"replay --run {ref} {' '.join(f'--agent {c}' for c in ckpts)} "
+               f"--workers {backend.workers} --out {rdir}",
+               lambda: replay(ref, ckpts, rdir, routes=route_set, workers=backend.workers, labels=list(arms)))
+    return (rdir / "table.md").read_text()
+
+
 def _tables_and_summary(out: Path, st: Stages, seeds: int, train_dir: Path, episodes, runs: dict[str, list[Path]],
-                        runs2: dict[str, list[Path]] | None, main: str, label2: str | None) -> str:
+                        runs2: dict[str, list[Path]] | None, main: str, label2: str | None,
+                        replays: list[str]) -> str:
     """Table 2, every arm table of both sets (model.arm_tables), the ranking, the figures
     and ``OUT/README.md``; returns its text."""
     from model.arm_tables import ranking, write_set_tables
@@ -168,6 +195,8 @@ def _tables_and_summary(out: Path, st: Stages, seeds: int, train_dir: Path, epis
         rank = ranking({main: ds, label: ds2})
         (tables / "ranking.md").write_text(rank + "\n")
         parts += ["", f"## Tables 3-4 on the second set, {label}", "", text2, "", rank]
+    if replays:
+        parts += ["", f"## Replay: every student fed the expert's inputs on {main}", "", *replays]
     figs = _figures(out, train_dir, runs, seeds, st)
     text = _summary(out, seeds, st.times, "\n".join(parts), figs, list(runs), main, label2)
     (out / "README.md").write_text(text)

@@ -12,8 +12,8 @@ from sumo_scimm.options import add_backend_options, backend_of
 # = model.train.EPOCHS, PATIENCE, ("none", *model.data.TEACHERS), model.loss.LossWeights()'s
 # scimm and mode (a test checks); importing model.train here would load torch for every
 # sumo-scimm command
-EPOCHS = 5
-PATIENCE = 2
+EPOCHS = 10
+PATIENCE = 3
 TEACHERS = ("none", "control", "fixed", "scimm", "smoother")
 TEACHER_WEIGHT, MODE_WEIGHT = 1.0, 0.1
 EVAL_SET = "town12_short"  # = model.reproduce.EVAL_SET

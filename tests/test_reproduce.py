@@ -48,6 +48,12 @@ def test_reproduce_runs_every_stage_and_resumes_without_redoing_them(tmp_path, c
     assert (out / "fig4_mode_posterior.png").stat().st_size > 0
     assert (out / "fig5_waypoint_overlay.png").is_file()
     assert (out / "loss_curves_seed0.png").stat().st_size > 0
+    # the replay: every arm's student on the expert's inputs, rows and table named by arm
+    with open(out / "replay" / "s0" / "replay.csv") as f:
+        replayed = list(csv.DictReader(f))
+    assert [r["agent"] for r in replayed[:3]] == arms and len(replayed) == 3 * 4
+    assert all(r["message"] == "" for r in replayed)
+    assert "| scimm |" in (out / "replay" / "s0" / "table.md").read_text()
     readme = (out / "README.md").read_text()
     assert "| arm | seed | train s | eval town12_smoke s | eval town12_smoke s |" in readme
     assert "Total: " in readme
@@ -60,6 +66,7 @@ def test_reproduce_runs_every_stage_and_resumes_without_redoing_them(tmp_path, c
     assert "== eval scimm s0" in log, "the stage lines are on stderr"
     assert "== eval scimm s0 on town12_smoke" in log
     assert "== train" not in log
+    assert "== replay" not in log, "a finished replay is not redone"
 
 
 @pytest.mark.parametrize("extra, message", [

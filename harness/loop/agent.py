@@ -106,8 +106,10 @@ BUILTIN_AGENTS = {
     "student": "model.agent:StudentAgent",  # --agent-config MODEL_CHECKPOINT (student.pt)
     # the shipped students (model/checkpoints/<name>, made by sumo-scimm reproduce)
     "baseline": "model.agent:BaselineStudent",
+    "control": "model.agent:ControlStudent",
     "fixed": "model.agent:FixedStudent",
     "scimm": "model.agent:ScimmStudent",
+    "smoother": "model.agent:SmootherStudent",
 }
 DEFAULT_AGENT = "scimm"  # the shipped SC-IMM student (model/checkpoints/scimm)
 

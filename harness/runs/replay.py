@@ -239,13 +239,20 @@ def run_replay(jobs: list[ReplayJob], workers: int | None = None, progress: bool
 
 
 def replay(run: Path, agents: list[str], out: Path, *, routes: str | None = None, subset: str | None = None,
-           workers: int | None = None, n_boot: int = 2000, progress: bool = True) -> str:
+           workers: int | None = None, n_boot: int = 2000, progress: bool = True,
+           labels: list[str] | None = None) -> str:
     """Replay reference run ``run`` with ``agents`` into ``out`` (module docstring); returns
-    the comparison table as Markdown."""
+    the comparison table as Markdown. ``labels``: names for the agents in replay.csv and the
+    table (e.g. arm names for checkpoint paths; default the ``agents`` strings)."""
     from harness.runs.provenance import software
     jobs = plan_replay(run, agents, out, routes, subset)
+    if labels is not None and (len(labels) != len(agents) or len(set(labels)) < len(labels)):
+        raise ValueError(f"labels {labels} must name each of the {len(agents)} agents once")
     (out / "outputs").mkdir(parents=True, exist_ok=True)
     rows = run_replay(jobs, workers, progress)
+    names = dict(zip(agents, labels or agents))
+    for r in rows:
+        r["agent"] = names[r["agent"]]
 
     def write(tmp: Path) -> None:
         with open(tmp, "w", newline="") as f:
@@ -253,8 +260,9 @@ def replay(run: Path, agents: list[str], out: Path, *, routes: str | None = None
             w.writeheader()
             w.writerows(rows)
     write_atomic(out / "replay.csv", write)
-    md = replay_table(rows, list(jobs[0].agents), out, n_boot)
+    md = replay_table(rows, [names[a] for a in jobs[0].agents], out, n_boot)
     write_atomic(out / "replay.json", json.dumps({"reference": str(run.resolve()), "agents": list(jobs[0].agents),
+                                                  "labels": [names[a] for a in jobs[0].agents],
                                                   "configs": list(jobs[0].configs), "routes": [j.key for j in jobs],
                                                   "software": software()}, indent=1) + "\n")
     return md

@@ -158,7 +158,7 @@ def _replay(st: Stages, out: Path, arms: tuple[str, ...], seed: int, route_set: 
     """Every arm's seed-``seed`` student fed the identical inputs of the expert's run on
     ``route_set`` (seed 0, evaluated once), compared with the first arm route-paired
     (harness.runs.replay: output stability without the exposure of each arm's own drive);
-    returns the Markdown table of ``OUT/replay/s<seed>``."""
+    returns the Markdown table of ``OUT/replay/s<seed>`` (made again when the arms changed)."""
     from harness.runs.evaluate import evaluate
     from harness.runs.replay import replay
     ref = out / "runs" / "expert_s0"
@@ -166,8 +166,10 @@ def _replay(st: Stages, out: Path, arms: tuple[str, ...], seed: int, route_set: 
            f"--out {ref} --resume", lambda: evaluate(route_set, "expert", None, ref, seed=0, resume=True,
                                                       backend=backend))
     rdir = out / "replay" / f"s{seed}"
-    if not (rdir / "table.md").is_file():
-        shutil.rmtree(rdir, ignore_errors=True)  # an interrupted replay starts again
+    made = rdir / "replay.json"  # written last
+    done = made.is_file() and json.loads(made.read_text()).get("labels") == list(arms)
+    if not done:
+        shutil.rmtree(rdir, ignore_errors=True)  # an interrupted replay, or one of other arms, starts again
         ckpts = [str(out / "models" / f"{arm}_s{seed}" / "student.pt") for arm in arms]
         st.run(f"replay s{seed}", f"replay --run {ref} {' '.join(f'--agent {c}' for c in ckpts)} "
                f"--workers {backend.workers} --out {rdir}",

@@ -199,17 +199,17 @@ def _drive(run: _Run, route: Route, net, plan: GlobalPlan, world: World, rngs: t
     lights_now = world.light_states(lights)
     while end is None:
         s = ego.state
-        progress, stops = ends.done.progress.index, signs.drawn
+        progress, drawn = ends.done.progress.index, signs.drawn  # drawn: the stop lines still to obey
         try:
             inputs = sensor_inputs(specs, s, plan, progress, snap, (snap, lights_now, props),
-                                   lambda: bev.render(s, snap, plan, lights_now, props, stops))
+                                   lambda: bev.render(s, snap, plan, lights_now, props, drawn))
             control, pred = _agent_step(run.agent, inputs, world.time, agent_timeout, alarm)
         except BaseException as exc:  # noqa: BLE001 - an agent failure ends this route only
             if is_stop(exc, stops):  # the user's Ctrl-C or SIGTERM, not the agent's
                 raise
             run.loop_time = wallclock.perf_counter() - loop0
             return FAILED_AGENT, f"{type(exc).__name__}: {exc}", ends.done.rc
-        run.log.scene.add(world.time, s, progress, snap, lights_now, prop_boxes, stops)  # the scene the agent saw
+        run.log.scene.add(world.time, s, progress, snap, lights_now, prop_boxes, drawn)  # the scene the agent saw
         s = ego.step(control)
         ego_s = float(plan.s[progress])
         scene.advance(s, ego_s)

@@ -392,8 +392,10 @@ def test_eval_refuses_a_corrupt_checkpoint_before_any_route_runs(tmp_path, capsy
     assert not out.exists()
 
 
-@pytest.mark.parametrize("arm, teacher", [("baseline", "none"), ("fixed", "fixed"), ("scimm", "scimm")])
-def test_the_shipped_students_load_safely_and_say_how_they_were_made(arm, teacher):
+# (arm, teacher, maximum epochs): fixed/ is still the 0.1.0 student (5 epochs, no early stopping)
+@pytest.mark.parametrize("arm, teacher, epochs", [("baseline", "none", 10), ("control", "control", 10),
+                                                  ("fixed", "fixed", 5), ("scimm", "scimm", 10)])
+def test_the_shipped_students_load_safely_and_say_how_they_were_made(arm, teacher, epochs):
     """model/checkpoints/<arm>: small, loadable with weights_only, with the manifest of the
     training that made it (seed 0 of `sumo-scimm reproduce`, model/checkpoints/README.md)."""
     from model.agent import SHIPPED
@@ -402,7 +404,10 @@ def test_the_shipped_students_load_safely_and_say_how_they_were_made(arm, teache
     model, manifest = load_checkpoint(path)
     assert manifest["teacher"] == teacher
     assert manifest["seed"] == 0
-    assert manifest["epochs"] == 5
+    assert manifest["epochs"] == epochs
+    if epochs == 10:  # early-stopped on val: the chosen epoch is one that ran
+        assert 1 <= manifest["chosen_epoch"] <= manifest["epochs_run"] <= epochs
+        assert manifest["stop_reason"] in ("patience", "epochs")
     assert json.loads((SHIPPED / arm / "manifest.json").read_text()) == manifest
 
 

@@ -16,7 +16,7 @@ from harness.runs.jobs import Job, run_job
 from harness.scoring.infractions import stop_signs
 from harness.sensors import bev as B
 from harness.sim.plan import build_plan
-from harness.sim.stop_signs import (STOP_AFTER, STOP_BEFORE, STOP_SPEED, StopTracker, drawn_per_tick, stop_history,
+from harness.sim.stop_signs import (STOP_AFTER, STOP_BEFORE, STOP_SPEED, StopTracker, stop_history,
                                     stop_passages)
 from harness.sim.world import Snapshot
 from scenarios import set_path
@@ -25,6 +25,14 @@ from sumo_nets import load_net
 
 SMOKE = read_routes(set_path("town12_smoke"))[1]
 STOP_ROUTE = SMOKE[1]  # town12_smoke's stop-sign route: one stop-sign passage (docs/world.md)
+
+
+# the BEV's stop state at each agent tick of a whole log (the closed loop's StopTracker must agree)
+def drawn_per_tick(s: np.ndarray, v: np.ndarray, s_in: np.ndarray) -> np.ndarray:
+    """(T + 1, P) bool: whether each stop line is drawn at each of the T + 1 agent ticks
+    around T logged ticks: row 0 before the first (all drawn), row k after tick k - 1."""
+    drawn = stop_history(s, v, s_in).drawn
+    return np.vstack([np.ones((1, drawn.shape[1]), bool), drawn])
 
 
 def test_the_zone_and_speed_constants_are_the_documented_ones():

@@ -78,13 +78,6 @@ def stop_history(s: np.ndarray, v: np.ndarray, s_in: np.ndarray) -> StopHistory:
     return StopHistory(since(in_zone(s, s_in)), since(stops_there(s, v, s_in)), since(past_zone(s, s_in)))
 
 
-def drawn_per_tick(s: np.ndarray, v: np.ndarray, s_in: np.ndarray) -> np.ndarray:
-    """(T + 1, P) bool: whether each stop line is drawn at each of the T + 1 agent ticks
-    around T logged ticks: row 0 before the first (all drawn), row k after tick k - 1."""
-    drawn = stop_history(s, v, s_in).drawn
-    return np.vstack([np.ones((1, drawn.shape[1]), bool), drawn])
-
-
 class StopTracker:
     """The stop-sign state of a route run in progress (the closed loop's copy of
     ``stop_history``): ``update`` once a tick with the numbers the log records."""

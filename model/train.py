@@ -41,20 +41,30 @@ baseline (l_scimm = l_mode = 0 whatever ``weights`` says) and never opens teache
 The validation loss is L_origin (expert path + speed waypoints, no augmentation) on the
 validation dataset, the same for every arm.
 
-Training to convergence (early stopping on the validation set): the cosine schedule runs
-over at most ``epochs`` epochs; after every epoch the validation L_origin is computed and
-the weights of the best epoch so far are kept in memory (a strictly lower loss is a new
-best, so ties keep the earlier epoch); after ``patience`` epochs without a new best the
-training stops. The weights saved are the best epoch's; the manifest and ``history.json``
-say which epoch was chosen, its validation loss and why the training stopped
-(``stop_reason``: ``patience``; ``epochs``, all of them run; ``max_steps``, the step
-budget ran out; ``no_val``, no validation set, so the last epoch is saved, as before early
-stopping existed; ``no_finite_val``, the validation loss was never finite: the last epoch).
-Why this and not a schedule fitted per arm: the criterion is the one loss every arm shares
-(L_origin on ``val``), it needs no extra run per arm, and the evaluation routes never take
-part in it. The schedule is not shortened when the training stops early, so a chosen epoch
-far before ``epochs`` says a smaller ``epochs`` (a cosine that ends sooner) is worth a try
-on ``val``.
+Epochs and the chosen epoch: an epoch is EPOCH_STEPS optimizer steps (``--epoch-steps``)
+drawn from a fresh balanced permutation (the draw above holds about 101k samples, 790
+batches, on the 128k-frame training set, so an epoch sees about half of it; 0 = the whole
+draw). The cosine schedule spans all ``epochs``; after every epoch the validation L_origin
+is computed and the weights of the best epoch so far are kept in memory (a strictly lower
+loss is a new best, so ties keep the earlier epoch). By default every arm runs the whole
+schedule and the best epoch of it is saved: with early stopping (patience 3) a baseline
+stopped at its 7th of 10 epochs and kept the 4th, because the validation speed-waypoint
+loss jumps by about 15 % from epoch to epoch early in the schedule, while other arms ran
+all 10; the arms then differed in training length. ``patience`` (``--patience``) still
+stops a training after that many epochs without a new best. The manifest and
+``history.json`` say which epoch was chosen, its validation loss and why the training
+stopped (``stop_reason``: ``epochs``, all of them run; ``patience``; ``max_steps``, the
+step budget ran out; ``no_val``, no validation set, so the last epoch is saved;
+``no_finite_val``, the validation loss was never finite: the last epoch). Why the
+criterion is this: it is the one loss every arm shares (L_origin on ``val``), it needs no
+extra run per arm, and the evaluation routes never take part in it.
+
+Schedule length (EPOCHS x EPOCH_STEPS = 3,200 steps, about 6 min on 2 cores): the longest
+that lets ``reproduce`` train and evaluate all five arms of a seed in 75 min on 2 cores
+(docs/results.md has the stage times). Measured on ``val`` (baseline, seed 0): best
+L_origin 1.91 after 3,200 steps; a 10-epoch schedule of whole draws (7,902 steps, 15 min)
+reached 1.73 for the loss-matched control. Longer trainings: ``--epochs`` and
+``--epoch-steps``.
 
 Determinism: torch.manual_seed(seed), deterministic algorithms, a fixed thread count, and
 one numpy generator (seed) for sample order and views, drawn for every epoch up front (an
@@ -92,11 +102,9 @@ KEEP_STAY = 0.15  # share of standing frames (StudentData.staying) drawn per epo
 DEPART_REPEAT = 3  # draws per epoch of a starting-off frame (StudentData.departing)
 CUT_PROB = 0.1  # share of samples with the route cut ahead (route-end augmentation)
 CUT_RANGE = (4.0, 30.0)  # [m] the cut distance, uniform
-EPOCHS = 10  # default maximum: about 1 min an epoch on 2 quiet cores for 128k frames (docs/results.md)
-# epochs without a new best validation L_origin before the training stops. 3, not 2: in the
-# schedule's first half the validation speed-waypoint loss moves by +-15 % from epoch to
-# epoch (`val`, baseline: 1.83, 2.11, 1.92 at epochs 4-6, while the path loss fell by 43 %)
-PATIENCE = 3
+EPOCHS = 8  # the cosine schedule spans them; the best on `val` is saved
+EPOCH_STEPS = 400  # optimizer steps per epoch (51,200 samples); 0 = the whole balanced draw
+PATIENCE = None  # no early stop: every arm runs the whole schedule (the docstring says why)
 THREADS = 2  # torch threads (fixed, so results do not depend on the machine's core count)
 
 
@@ -112,8 +120,9 @@ class TrainConfig:
     teacher: str = "none"  # none | control | fixed | scimm | smoother
     val: Path | None = None  # validation dataset: its L_origin chooses the epoch saved
     seed: int = 0
-    epochs: int = EPOCHS  # at most; the cosine schedule spans them all
-    patience: int = PATIENCE  # early stopping (with ``val`` only)
+    epochs: int = EPOCHS  # the cosine schedule spans them all
+    epoch_steps: int = EPOCH_STEPS  # optimizer steps per epoch; 0 = the whole balanced draw
+    patience: int | None = PATIENCE  # early stopping after this many epochs without a new best (``val`` only)
     cache_dir: Path | None = None  # default: <data>/cache (BEV cache, shared by trainings)
     max_steps: int | None = None  # stop early (tests, benchmarks); None = all epochs
     threads: int = THREADS
@@ -125,7 +134,9 @@ class TrainConfig:
             raise BadInput(f"--teacher must be none, {', '.join(TEACHERS)}, got {self.teacher!r}")
         if self.epochs < 1:
             raise BadInput(f"--epochs must be >= 1, got {self.epochs}")
-        if self.patience < 1:
+        if self.epoch_steps < 0:
+            raise BadInput(f"--epoch-steps must be >= 0 (0 = the whole balanced draw), got {self.epoch_steps}")
+        if self.patience is not None and self.patience < 1:
             raise BadInput(f"--patience must be >= 1, got {self.patience}")
         if self.seed < 0:
             raise BadInput(f"--seed must be >= 0, got {self.seed}")
@@ -263,7 +274,8 @@ def train(cfg: TrainConfig) -> Path:
     opt = make_optimizer(model)
     weights = cfg.loss_weights
     plans = [epoch_plan(data, rng) for _ in range(cfg.epochs)]
-    steps = [len(order) // BATCH for order, _, _ in plans]
+    steps = [len(order) // BATCH for order, _, _ in plans]  # whole batches of each epoch's draw
+    steps = [min(n, cfg.epoch_steps) for n in steps] if cfg.epoch_steps else steps
     if min(steps) < 1:
         raise BadInput(f"{cfg.data} has {len(data)} frames, fewer than one batch of {BATCH} per epoch")
     total = sum(steps) if cfg.max_steps is None else min(cfg.max_steps, sum(steps))
@@ -285,7 +297,7 @@ def train(cfg: TrainConfig) -> Path:
             best.update(model, record)
         history.append(record)
         tqdm.write(_epoch_line(record))
-        if val is not None and best.waited(epoch) >= cfg.patience:
+        if val is not None and cfg.patience is not None and best.waited(epoch) >= cfg.patience:
             stop = "patience"
             break
         if step >= total:
@@ -317,7 +329,8 @@ def _manifest(cfg: TrainConfig, data: StudentData, val: StudentData | None, weig
     return {
         "data": str(cfg.data), "data_hash": data.digest, "val": str(cfg.val) if cfg.val else None,
         "val_hash": val.digest if val else None, "teacher": cfg.teacher, "seed": cfg.seed,
-        "git_commit": git_commit(), "epochs": cfg.epochs, "patience": cfg.patience, "epochs_run": len(history),
+        "git_commit": git_commit(), "epochs": cfg.epochs, "epoch_steps": cfg.epoch_steps,
+        "patience": cfg.patience, "epochs_run": len(history),
         "steps": history[-1]["step"], "batch": BATCH, "frames": len(data), "loss_weights": asdict(weights),
         "schedule": {"lr": LR, "min_lr": MIN_LR, "warmup_steps": WARMUP_STEPS, "weight_decay": WEIGHT_DECAY,
                      "aug_prob": AUG_PROB, "keep_stay": KEEP_STAY, "cut_prob": CUT_PROB},

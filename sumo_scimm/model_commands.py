@@ -9,11 +9,12 @@ from pathlib import Path
 from harness.common.errors import BadInput
 from sumo_scimm.options import add_backend_options, backend_of
 
-# = model.train.EPOCHS, PATIENCE, ("none", *model.data.TEACHERS), model.loss.LossWeights()'s
+# = model.train.EPOCHS, EPOCH_STEPS, PATIENCE, ("none", *model.data.TEACHERS), model.loss.LossWeights()'s
 # scimm and mode (a test checks); importing model.train here would load torch for every
 # sumo-scimm command
-EPOCHS = 10
-PATIENCE = 3
+EPOCHS = 8
+EPOCH_STEPS = 400
+PATIENCE = None
 TEACHERS = ("none", "control", "fixed", "scimm", "smoother")
 TEACHER_WEIGHT, MODE_WEIGHT = 1.0, 0.1
 EVAL_SET = "town12_short"  # = model.reproduce.EVAL_SET
@@ -44,7 +45,7 @@ def _train(args: argparse.Namespace) -> int:
                           mode=MODE_WEIGHT if args.mode_weight is None else args.mode_weight)
     cfg = TrainConfig(data=Path(args.data), out=Path(args.out), teacher=args.teacher,
                       val=Path(args.val) if args.val else None, seed=args.seed, epochs=args.epochs,
-                      patience=args.patience, cache_dir=Path(args.cache) if args.cache else None, weights=weights)
+                      epoch_steps=args.epoch_steps, patience=args.patience, cache_dir=Path(args.cache) if args.cache else None, weights=weights)
     print(f"model checkpoint: {train(cfg)}")
     return 0
 
@@ -99,9 +100,13 @@ def register(sub: argparse._SubParsersAction) -> None:
                     "saved (early stopping); without it the last epoch is saved")
     tr.add_argument("--seed", type=int, default=0, help="seed of weights, sample order, views (default 0)")
     tr.add_argument("--epochs", type=int, default=EPOCHS,
-                    help=f"passes over the data at most; the learning-rate schedule spans them (default {EPOCHS})")
+                    help=f"epochs; the learning-rate schedule spans them, the best on --val is saved (default {EPOCHS})")
+    tr.add_argument("--epoch-steps", type=int, default=EPOCH_STEPS,
+                    help=f"optimizer steps of 128 samples per epoch; 0 = a whole pass of the balanced draw "
+                    f"(default {EPOCH_STEPS})")
     tr.add_argument("--patience", type=int, default=PATIENCE,
-                    help=f"with --val: stop after P epochs without a new best validation loss (default {PATIENCE})")
+                    help="with --val: stop after P epochs without a new best validation loss (default: never, "
+                    "the whole schedule runs)")
     tr.add_argument("--teacher-weight", type=_weight, metavar="L",
                     help=f"lambda_scimm of eq. 10, the teacher terms' weight (default {TEACHER_WEIGHT}; "
                     "not with --teacher none)")

@@ -146,6 +146,19 @@ def test_training_stops_after_patience_epochs_without_a_new_best(sets, tmp_path,
     assert not all(torch.equal(v, seen[3][k]) for k, v in model.state_dict().items())
 
 
+def test_by_default_every_epoch_runs_and_the_best_is_saved(sets, tmp_path, monkeypatch):
+    """Validation losses rising after epoch 1 (1, 2, 3, 4): no early stop by default, all
+    four epochs run and epoch 1 is saved; --epoch-steps 1 gives one step per epoch."""
+    import model.train as mt
+    losses = iter([1.0, 2.0, 3.0, 4.0])
+    monkeypatch.setattr(mt, "estimate_loss", lambda model, data, batch=256: dict(path=(v := next(losses)),
+                                                                                   speed_wps=0.0, loss=v))
+    train_dir, val_dir = sets
+    _, m = load_checkpoint(_train(train_dir, tmp_path / "d", val=val_dir, epochs=4, epoch_steps=1))
+    assert (m["chosen_epoch"], m["stop_reason"], m["epochs_run"], m["patience"]) == (1, "epochs", 4, None)
+    assert [r["step"] for r in m["history"]] == [1, 2, 3, 4] and m["epoch_steps"] == 1
+
+
 def test_without_a_validation_set_the_last_epoch_is_saved(sets, tmp_path):
     train_dir, _ = sets
     _, m = load_checkpoint(_train(train_dir, tmp_path / "n", epochs=2))
@@ -165,9 +178,9 @@ def test_early_stopping_is_deterministic_for_a_seed(sets, tmp_path):
 
 # --- command line -------------------------------------------------------------------------------
 def test_the_cli_defaults_are_the_trainings():
-    from model.train import EPOCHS, PATIENCE
+    from model.train import EPOCH_STEPS, EPOCHS, PATIENCE
     from sumo_scimm import model_commands as mc
-    assert (mc.EPOCHS, mc.PATIENCE) == (EPOCHS, PATIENCE)
+    assert (mc.EPOCHS, mc.EPOCH_STEPS, mc.PATIENCE) == (EPOCHS, EPOCH_STEPS, PATIENCE)
     assert mc.TEACHERS == ("none", *TEACHERS)
     assert (mc.TEACHER_WEIGHT, mc.MODE_WEIGHT) == (LossWeights().scimm, LossWeights().mode)
 
@@ -180,6 +193,7 @@ def test_the_cli_defaults_are_the_trainings():
     (["--teacher-weight", "0.5"], "--teacher-weight: the baseline (--teacher none) has no teacher terms"),
     (["--mode-weight", "0.5"], "--mode-weight: the baseline (--teacher none) has no teacher terms"),
     (["--patience", "0"], "--patience must be >= 1"),
+    (["--epoch-steps", "-1"], "--epoch-steps must be >= 0"),
 ])
 def test_bad_weights_and_patience_are_one_line_and_write_nothing(tmp_path, capsys, args, message):
     fake_dataset(tmp_path / "data")

@@ -5,7 +5,7 @@
 Each arm's curves come from its training folder's ``history.json`` (model.train; a folder
 trained before that file existed falls back to the ``history`` of its ``manifest.json``).
 Three panels, x = epoch: the validation path loss and the validation speed-waypoint loss
-(the two terms of L_origin on the validation set [m^2], the criterion of early stopping,
+(the two terms of L_origin on the validation set [m^2], the criterion that chooses the epoch saved,
 the same for every arm) and the training loss (eq. 10 with the arm's own weights, so its
 level differs between arms; its shape is what to compare). The chosen epoch, whose weights
 the checkpoint holds, is a ring on each curve: the manifest's ``chosen_epoch``, or for a

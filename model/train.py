@@ -113,7 +113,7 @@ class TrainConfig:
     """One training (the options of ``sumo-scimm train``): teacher ``none`` (baseline, l_scimm =
     l_mode = 0 whatever ``weights`` says), ``control`` (the expert's own labels in the teacher
     terms) or a teacher method; ``weights`` = LossWeights(scimm=--teacher-weight,
-    mode=--mode-weight); ``epochs`` the maximum, ``patience`` the early stopping on ``val``."""
+    mode=--mode-weight); ``epochs`` x ``epoch_steps`` the schedule, ``patience`` an optional early stop."""
 
     data: Path
     out: Path
@@ -254,7 +254,7 @@ def train(cfg: TrainConfig) -> Path:
     """Train one student; returns the model checkpoint file (``cfg.out/student.pt``).
 
     One function on purpose, as nanoGPT's train.py: the story (seed, data, model and
-    optimizer, loop with early stopping, save) reads top to bottom, its steps in small
+    optimizer, loop with the best epoch kept, save) reads top to bottom, its steps in small
     helpers above."""
     t0 = time.perf_counter()
     # seed: the network's initial weights come from torch's global generator,
@@ -281,7 +281,7 @@ def train(cfg: TrainConfig) -> Path:
     total = sum(steps) if cfg.max_steps is None else min(cfg.max_steps, sum(steps))
     tqdm.write(f"student: {n_params(model):,} parameters; {len(data):,} frames, at most {total} steps of {BATCH}, "
                f"teacher {cfg.teacher}, seed {cfg.seed}")
-    # loop: one epoch, its validation loss, early stopping
+    # loop: one epoch, its validation loss, the best epoch kept (an early stop with patience)
     step, history, best, stop = 0, [], Best(), "epochs"
     bar = tqdm(total=total, desc=f"train ({cfg.teacher})", unit="step", disable=None)
     for epoch, plan in enumerate(plans, start=1):

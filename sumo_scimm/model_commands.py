@@ -97,7 +97,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                     help="teacher labels from DATA/teacher/<method>; control: the expert's own labels in the "
                     "teacher terms (loss-matched control, no files) (default none = baseline)")
     tr.add_argument("--val", help="validation dataset folder: its L_origin after every epoch chooses the epoch "
-                    "saved (early stopping); without it the last epoch is saved")
+                    "saved; without it the last epoch is saved")
     tr.add_argument("--seed", type=int, default=0, help="seed of weights, sample order, views (default 0)")
     tr.add_argument("--epochs", type=int, default=EPOCHS,
                     help=f"epochs; the learning-rate schedule spans them, the best on --val is saved (default {EPOCHS})")

@@ -6,8 +6,8 @@
     sumo-scimm train curves --runs baseline=runs/student_baseline scimm=runs/student_scimm --out curves.png
 
 Story: seed -> data (cached BEVs, teacher files) -> model -> optimizer -> loop (pure
-learning-rate schedule, validation loss averaged under no_grad after every epoch, early
-stopping) -> save the chosen epoch's weights.
+learning-rate schedule, validation loss averaged under no_grad after every epoch, the best
+epoch kept) -> save the chosen epoch's weights.
 
 Schedule (fixed, the same for every arm): AdamW (betas 0.9/0.95, weight decay 0.01 on
 matrices and kernels only), batch 128, learning rate linear warm-up over WARMUP_STEPS to
@@ -59,11 +59,11 @@ step budget ran out; ``no_val``, no validation set, so the last epoch is saved;
 criterion is this: it is the one loss every arm shares (L_origin on ``val``), it needs no
 extra run per arm, and the evaluation routes never take part in it.
 
-Schedule length (EPOCHS x EPOCH_STEPS = 3,200 steps, about 6 min on 2 cores): the longest
-that lets ``reproduce`` train and evaluate all five arms of a seed in 75 min on 2 cores
-(docs/results.md has the stage times). Measured on ``val`` (baseline, seed 0): best
-L_origin 1.91 after 3,200 steps; a 10-epoch schedule of whole draws (7,902 steps, 15 min)
-reached 1.73 for the loss-matched control. Longer trainings: ``--epochs`` and
+Schedule length (EPOCHS x EPOCH_STEPS = 3,200 steps, 6-7 min on 2 cores): set by SPEC §11's
+target for ``reproduce``, five arms of a seed trained and evaluated in <= 75 min on 2 cores
+(docs/results.md has the stage times). Its cost on ``val`` (seed 0): best L_origin 1.896
+(control) and 1.886 (SC-IMM) after 3,200 steps, against 1.732 and 1.673 after 10 epochs of
+whole draws (7,902 steps, about 15 min). Longer trainings: ``--epochs`` and
 ``--epoch-steps``.
 
 Determinism: torch.manual_seed(seed), deterministic algorithms, a fixed thread count, and
@@ -212,7 +212,7 @@ def make_optimizer(model: Student) -> torch.optim.AdamW:
 
 
 class Best:
-    """Early stopping's memory: the epoch with the lowest validation L_origin so far
+    """The best epoch so far: the epoch with the lowest validation L_origin so far
     (``val["loss"]`` of estimate_loss, path + speed waypoints [m^2]) and a copy of its weights."""
 
     def __init__(self) -> None:

@@ -45,7 +45,8 @@ def _train(args: argparse.Namespace) -> int:
                           mode=MODE_WEIGHT if args.mode_weight is None else args.mode_weight)
     cfg = TrainConfig(data=Path(args.data), out=Path(args.out), teacher=args.teacher,
                       val=Path(args.val) if args.val else None, seed=args.seed, epochs=args.epochs,
-                      epoch_steps=args.epoch_steps, patience=args.patience, cache_dir=Path(args.cache) if args.cache else None, weights=weights)
+                      epoch_steps=args.epoch_steps, patience=args.patience,
+                      cache_dir=Path(args.cache) if args.cache else None, weights=weights)
     print(f"model checkpoint: {train(cfg)}")
     return 0
 
@@ -100,7 +101,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                     "saved; without it the last epoch is saved")
     tr.add_argument("--seed", type=int, default=0, help="seed of weights, sample order, views (default 0)")
     tr.add_argument("--epochs", type=int, default=EPOCHS,
-                    help=f"epochs; the learning-rate schedule spans them, the best on --val is saved (default {EPOCHS})")
+                    help=f"epochs; the learning-rate schedule spans them, the best on --val is saved "
+                    f"(default {EPOCHS})")
     tr.add_argument("--epoch-steps", type=int, default=EPOCH_STEPS,
                     help=f"optimizer steps of 128 samples per epoch; 0 = a whole pass of the balanced draw "
                     f"(default {EPOCH_STEPS})")

@@ -157,6 +157,10 @@ def test_by_default_every_epoch_runs_and_the_best_is_saved(sets, tmp_path, monke
     _, m = load_checkpoint(_train(train_dir, tmp_path / "d", val=val_dir, epochs=4, epoch_steps=1))
     assert (m["chosen_epoch"], m["stop_reason"], m["epochs_run"], m["patience"]) == (1, "epochs", 4, None)
     assert [r["step"] for r in m["history"]] == [1, 2, 3, 4] and m["epoch_steps"] == 1
+    # --epoch-steps 0: an epoch is every whole batch of the balanced draw (2 on this dataset, as the default)
+    losses = iter([1.0, 2.0])  # the validation losses of this second training
+    _, m0 = load_checkpoint(_train(train_dir, tmp_path / "w", val=val_dir, epochs=2, epoch_steps=0))
+    assert [r["step"] for r in m0["history"]] == [2, 4]
 
 
 def test_without_a_validation_set_the_last_epoch_is_saved(sets, tmp_path):
@@ -168,8 +172,9 @@ def test_without_a_validation_set_the_last_epoch_is_saved(sets, tmp_path):
 
 def test_early_stopping_is_deterministic_for_a_seed(sets, tmp_path):
     train_dir, val_dir = sets
-    a, ma = load_checkpoint(_train(train_dir, tmp_path / "a", val=val_dir, teacher="control", epochs=3, seed=2))
-    b, mb = load_checkpoint(_train(train_dir, tmp_path / "b", val=val_dir, teacher="control", epochs=3, seed=2))
+    kw = dict(val=val_dir, teacher="control", epochs=3, seed=2, patience=1)  # patience 1: an early stop may happen
+    a, ma = load_checkpoint(_train(train_dir, tmp_path / "a", **kw))
+    b, mb = load_checkpoint(_train(train_dir, tmp_path / "b", **kw))
     for (k, va), vb in zip(a.state_dict().items(), b.state_dict().values()):
         torch.testing.assert_close(va, vb, rtol=0, atol=0, msg=k)
     assert ma["chosen_epoch"] == mb["chosen_epoch"]

@@ -17,6 +17,13 @@ A single-frame student cannot see a lag, so a lagging label is label noise. Per 
                       the next 0.25 s).
     switches          changes of the dominant mode (argmax of the posterior) per minute of
                       driving, over all frames.
+    stops and starts  the label speeds 1.25 s and 2.5 s ahead (k = 5 and 10 of the 10
+                      label speeds) against the expert's, in two kinds of frames: braking
+                      for a red light (recorded speed > MOVING_SPEED with the expert's
+                      red-light cause active) and starting off (recorded speed
+                      <= STOOD_SPEED and >= DEPART_TRAVEL m travelled in the next 2.5 s).
+                      A causal teacher that lags brakes later than the expert in the first
+                      (label above the expert's) and starts later in the second (below).
 """
 from __future__ import annotations
 
@@ -33,6 +40,9 @@ OFFSETS = tuple(range(-4, 5))  # frames tried for the alignment
 STOOD_SPEED = 0.1  # [m/s]: "standing" for the standstill check
 STOOD_FRAMES = 3  # this frame and the 2 before: 0.5 s at 4 Hz
 STANDSTILL_OK = 0.3  # [m/s]: a teacher v(0) at most this counts as standing
+MOVING_SPEED = 0.5  # [m/s]: "moving" for the red-light frames
+DEPART_TRAVEL = 0.5  # [m] in 2.5 s: "starts off" (as the student's data balance, model.data)
+AHEAD = {"1.25 s": 4, "2.5 s": 9}  # label speed index of the horizons compared
 
 
 def signals(path: np.ndarray, speed: np.ndarray) -> dict[str, np.ndarray]:
@@ -111,6 +121,40 @@ def lag_tables(episodes: Sequence[dict], methods: Sequence[str]) -> tuple[pd.Dat
                      "stood_mean_v0": float(np.mean(v)) if len(v) else np.nan,
                      "switches_per_min": n_switch[r] / minutes if r in n_switch and minutes else np.nan})
     return align, pd.DataFrame(rows)
+
+
+def stops_starts(episodes: Sequence[dict], methods: Sequence[str]) -> pd.DataFrame:
+    """Per situation (``red light``, ``start``) and row (raw, then ``methods``): frames, the
+    mean label speed [m/s] at each horizon of AHEAD and, for a teacher, its mean excess over
+    the expert's. Episodes as lag_tables, plus "light" (T,) bool, the expert's red-light
+    cause, and "travel" (T,) [m], its distance to the last speed waypoint (2.5 s ahead)."""
+    rows = []
+    for name in ("red light", "start"):
+        picks = []
+        for ep in episodes:
+            v = np.asarray(ep["v"], dtype=float)
+            picks.append(ep["light"] & (v > MOVING_SPEED) if name == "red light"
+                         else (v <= STOOD_SPEED) & (ep["travel"] >= DEPART_TRAVEL))
+        def chosen(r: str) -> np.ndarray:  # (frames, 10) label speeds of row r in the picked frames
+            return np.concatenate([ep[r]["speed"][p] for ep, p in zip(episodes, picks)] or [np.zeros((0, 10))])
+        raw = chosen("raw")
+        for r in ("raw", *methods):
+            lab = chosen(r)
+            row = {"situation": name, "method": ROW_NAMES[r], "frames": len(lab)}
+            for h, k in AHEAD.items():
+                row[f"v_{h}"] = float(lab[:, k].mean()) if len(lab) else np.nan
+                row[f"excess_{h}"] = float((lab[:, k] - raw[:, k]).mean()) if len(lab) else np.nan
+            rows.append(row)
+    return pd.DataFrame(rows)
+
+
+def format_stops_starts(df: pd.DataFrame) -> str:
+    """stops_starts as aligned text."""
+    lines = [f"{'Situation':10} {'Method':20} {'frames':>7} {'v 1.25 s':>9} {'excess':>8} {'v 2.5 s':>8} {'excess':>8}"]
+    for _, r in df.iterrows():
+        lines.append(f"{r['situation']:10} {r['method']:20} {r['frames']:7d} {r['v_1.25 s']:9.2f} "
+                     f"{r['excess_1.25 s']:+8.2f} {r['v_2.5 s']:8.2f} {r['excess_2.5 s']:+8.2f}")
+    return "\n".join(lines)
 
 
 def format_lag(align: pd.DataFrame, still: pd.DataFrame) -> str:

@@ -7,6 +7,7 @@ Table 2 files out (SPEC §6). ``sumo-scimm teacher`` and ``sumo-scimm reproduce`
     DIR/teacher/fit_residuals.csv  fit residual of the observation per dominant mode (SPEC §6.1)
     DIR/teacher/lag.csv            alignment offset of v(0) and c0 per mode and teacher (scimm.lag)
     DIR/teacher/standstill.csv     teacher speed where the expert stands; mode switches per minute
+    DIR/teacher/stops_starts.csv   label speeds 1.25 s and 2.5 s ahead at red lights and starts (scimm.lag)
 """
 from __future__ import annotations
 
@@ -21,7 +22,7 @@ from harness.common.atomic import write_atomic
 from harness.common.errors import BadInput
 from scimm import pathspeed
 from scimm import teacher as tch
-from scimm.lag import lag_tables
+from scimm.lag import lag_tables, stops_starts
 from scimm.modes import IMMConfig
 from scimm.table2 import fit_residuals, mode_meaning, situations, table2
 
@@ -62,7 +63,7 @@ def write_tables(folder: Path, files: list[Path]) -> dict[str, pd.DataFrame]:
 
 
 def evaluate(data: Path, files: list[Path], methods: tuple[str, ...] = tch.METHODS) -> dict[str, pd.DataFrame]:
-    """{"table2", "mode_meaning", "fit_residuals", "lag", "standstill"}: Table 2, the
+    """{"table2", "mode_meaning", "fit_residuals", "lag", "standstill", "stops_starts"}: Table 2, the
     mode-meaning table, the fit residuals per mode (scimm.table2) and the lag figures
     (scimm.lag) of the episode files against their written teachers
     ``data/teacher/<method>/`` (scimm.teacher file contract; ``methods`` must include scimm,
@@ -71,7 +72,8 @@ def evaluate(data: Path, files: list[Path], methods: tuple[str, ...] = tch.METHO
     for f in files:
         with np.load(f, allow_pickle=False) as a:
             ep = {"raw": {"path": a["path"], "speed": pathspeed.label_speeds(a["speed_wps"])},
-                  "pose": np.stack([a["x"], a["y"], a["yaw"]], axis=-1), "v": a["v"]}
+                  "pose": np.stack([a["x"], a["y"], a["yaw"]], axis=-1), "v": a["v"],
+                  "light": a["flag_light"], "travel": np.linalg.norm(a["speed_wps"][:, -1], axis=-1)}
             ep.update({m: tch.load_teacher(data, m, f.stem) for m in methods})
             sits.append(situations(a))
             fits.append({"path": a["path"], "speed_wps": a["speed_wps"], "mu": ep["scimm"]["mu"]})
@@ -79,4 +81,5 @@ def evaluate(data: Path, files: list[Path], methods: tuple[str, ...] = tch.METHO
     mus = {m: [ep[m]["mu"] for ep in episodes] for m in methods}
     align, still = lag_tables(episodes, methods)
     return {"table2": table2(episodes, ("raw", *methods)), "mode_meaning": mode_meaning(sits, mus),
-            "fit_residuals": fit_residuals(fits), "lag": align, "standstill": still}
+            "fit_residuals": fit_residuals(fits), "lag": align, "standstill": still,
+            "stops_starts": stops_starts(episodes, methods)}

@@ -22,7 +22,7 @@ METHOD_CHOICES = (*tch.METHODS, "all")
 
 
 def _teacher(args: argparse.Namespace) -> int:
-    from scimm.lag import format_lag
+    from scimm.lag import format_lag, format_stops_starts
     from scimm.table2 import format_meaning, format_residuals, format_table2
     folder, files = dataset_episodes(args.data)
     make_teachers(folder, files, tch.METHODS if args.method == "all" else (args.method,))
@@ -42,6 +42,9 @@ def _teacher(args: argparse.Namespace) -> int:
           f"expert's (> 0 = late), per dominant SC-IMM mode -> {folder / 'teacher' / 'lag.csv'}; the teacher's "
           f"v(0) where the expert has stood >= 0.5 s, and mode switches -> {folder / 'teacher' / 'standstill.csv'}")
     print(format_lag(tables["lag"], tables["standstill"]))
+    print("\nStops and starts: label speeds ahead [m/s] where the expert brakes for a red light and where it "
+          f"starts off, and the teacher's excess over the expert's -> {folder / 'teacher' / 'stops_starts.csv'}")
+    print(format_stops_starts(tables["stops_starts"]))
     return 0
 
 

@@ -51,3 +51,24 @@ def test_lag_tables_on_a_teacher_one_frame_late():
     assert s.loc["Original Raw Expert", "stood_frames"] == 10
     assert s.loc["Fixed-IMM", "standing_share"] == 1.0
     assert s.loc["Fixed-IMM", "switches_per_min"] == 0.0
+
+
+def test_stops_starts_compare_label_speeds_ahead_in_red_light_and_start_frames():
+    """Six frames: 0-1 moving with a red light, 2 moving without one, 3 standing and staying,
+    4-5 standing and starting off. The teacher's labels are the raw ones + 0.5 m/s in every
+    frame, so its excess is +0.5 in both situations; the raw means are picked frames only."""
+    from scimm.lag import stops_starts
+    speed = np.array([[6.0] * 10, [4.0] * 10, [9.0] * 10, [0.0] * 10, [2.0] * 10, [1.0] * 10])
+    ep = {"raw": {"speed": speed}, "fixed": {"speed": speed + 0.5},
+          "v": np.array([6.0, 4.0, 9.0, 0.0, 0.05, 0.0]),
+          "light": np.array([True, True, False, True, False, False]),
+          "travel": np.array([15.0, 10.0, 22.0, 0.2, 5.0, 0.5])}
+    df = stops_starts([ep], ("fixed",)).set_index(["situation", "method"])
+    assert df.loc[("red light", "Original Raw Expert"), "frames"] == 2  # frame 3 stands: not braking
+    assert df.loc[("red light", "Original Raw Expert"), "v_2.5 s"] == 5.0  # (6 + 4) / 2
+    assert df.loc[("red light", "Fixed-IMM"), "v_1.25 s"] == 5.5
+    assert df.loc[("red light", "Fixed-IMM"), "excess_2.5 s"] == 0.5
+    assert df.loc[("start", "Original Raw Expert"), "frames"] == 2  # 0.5 m in 2.5 s counts, 0.2 m not
+    assert df.loc[("start", "Original Raw Expert"), "v_2.5 s"] == 1.5
+    assert df.loc[("start", "Fixed-IMM"), "excess_1.25 s"] == 0.5
+    assert df.loc[("start", "Original Raw Expert"), "excess_2.5 s"] == 0.0

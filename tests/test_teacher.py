@@ -231,6 +231,8 @@ def test_teacher_cli_writes_the_contract_files(dataset, capsys):
     lag = pd.read_csv(dataset / "teacher" / "lag.csv")
     assert len(lag) == 4 * 3
     still = pd.read_csv(dataset / "teacher" / "standstill.csv")
+    stops = pd.read_csv(dataset / "teacher" / "stops_starts.csv")
+    assert list(stops["situation"]) == ["red light"] * 4 + ["start"] * 4 and "Stops and starts" in out
     assert list(still["method"]) == ["Original Raw Expert", "Fixed-IMM", "SC-IMM", "IMM smoother"]
     res = pd.read_csv(dataset / "teacher" / "fit_residuals.csv")
     assert "Fit residual" in out

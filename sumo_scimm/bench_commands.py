@@ -130,6 +130,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                     help="also print the wall time a finished 'sumo-scimm reproduce --out DIR' recorded")
     bn.add_argument("--replay", metavar="DIR",
                     help="also time 'sumo-scimm replay' of the eval run DIR (its every route) with three of the "
-                         "shipped students (baseline, fixed, scimm) on --workers (SPEC §11: an expert run of town12_short)")
+                         "shipped students (baseline, fixed, scimm) on --workers (SPEC §11: an expert run of "
+                         "town12_short)")
     bn.add_argument("--json", help="also write the figures as JSON to this file")
     bn.set_defaults(func=_bench)

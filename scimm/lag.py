@@ -139,7 +139,7 @@ def stops_starts(episodes: Sequence[dict], methods: Sequence[str]) -> pd.DataFra
             return np.concatenate([ep[r]["speed"][p] for ep, p in zip(episodes, picks)] or [np.zeros((0, 10))])
         raw = chosen("raw")
         for r in ("raw", *methods):
-            lab = chosen(r)
+            lab = raw if r == "raw" else chosen(r)
             row = {"situation": name, "method": ROW_NAMES[r], "frames": len(lab)}
             for h, k in AHEAD.items():
                 row[f"v_{h}"] = float(lab[:, k].mean()) if len(lab) else np.nan

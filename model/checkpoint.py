@@ -84,7 +84,7 @@ def load_checkpoint(path: str | Path) -> tuple[Student, dict]:
     if not isinstance(blob, dict) or blob.get("format") != FORMAT:
         raise BadInput(f"model checkpoint {p} is not a {FORMAT} file; use a file written by 'sumo-scimm train'")
     try:
-        model = Student(NetConfig(**blob["config"]))
+        model = Student(NetConfig(**{"speed_input": True, **blob["config"]}))
         model.load_state_dict(blob["state_dict"])
     except (KeyError, TypeError, ValueError, RuntimeError) as exc:
         raise BadInput(f"model checkpoint {p} does not match the student network ({type(exc).__name__}: "

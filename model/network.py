@@ -52,6 +52,7 @@ class NetConfig:
     n_modes: int = 5  # len(MODES)
     target_scale: float = 20.0  # target point divided by this [m] before its MLP (median 18 m)
     speed_scale: float = 10.0  # speed divided by this [m/s] before its MLP
+    speed_input: bool = False  # True: the ego speed conditions the queries (see docs/student.md)
 
     def __post_init__(self) -> None:
         if self.bev_size % 8:
@@ -155,6 +156,8 @@ class Student(nn.Module):
         b = bev.shape[0]
         vis = self.bev(bev)  # (B, 64, D)
         tp = self.target_in(target_point / cfg.target_scale).unsqueeze(1)  # (B, 1, D)
+        if not cfg.speed_input:
+            speed = torch.zeros_like(speed)
         sp = self.speed_in(speed.unsqueeze(-1) / cfg.speed_scale).unsqueeze(1)  # (B, 1, D)
         q = self.queries.expand(b, -1, -1)  # (B, 30, D)
         x = torch.cat([tp, sp, q], dim=1)  # (B, 2 + 30, D)

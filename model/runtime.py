@@ -67,12 +67,15 @@ class OnnxNetwork:
         opts.graph_optimization_level = ort.GraphOptimizationLevel.ORT_ENABLE_ALL
         opts.log_severity_level = 3  # errors only
         self.session = ort.InferenceSession(export_onnx(model), opts, providers=["CPUExecutionProvider"])
+        # a student without speed input (NetConfig.speed_input False) exports a graph without it
+        self.takes_speed = "speed" in {i.name for i in self.session.get_inputs()}
 
     def __call__(self, bev: np.ndarray, target_point: np.ndarray, speed: float) -> tuple[np.ndarray, np.ndarray]:
         """bev (9, 64, 64) bool or {0, 1}; target point (2,) [m]; speed [m/s] -> (path (20, 2),
         speed waypoints (10, 2)) [m] as float64, ego frame."""
-        path, speed_wps = self.session.run(None, {
-            "bev": bev[None].astype(np.float32),
-            "target_point": np.asarray(target_point, dtype=np.float32)[None],
-            "speed": np.array([speed], dtype=np.float32)})
+        feed = {"bev": bev[None].astype(np.float32),
+                "target_point": np.asarray(target_point, dtype=np.float32)[None]}
+        if self.takes_speed:
+            feed["speed"] = np.array([speed], dtype=np.float32)
+        path, speed_wps = self.session.run(None, feed)
         return path[0].astype(float), speed_wps[0].astype(float)

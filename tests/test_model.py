@@ -108,6 +108,29 @@ def test_student_outputs_cumulative_points_and_five_mode_logits():
     torch.testing.assert_close(out["path"], torch.cumsum(increments, 1))
 
 
+def test_a_student_without_speed_input_gives_the_same_outputs_at_every_speed():
+    torch.manual_seed(0)
+    m = Student(NetConfig(speed_input=False)).eval()
+    bev, tp = (torch.rand(2, 9, 64, 64) > 0.9).float(), torch.tensor([[12.0, 1.0], [20.0, -3.0]])
+    with torch.no_grad():
+        slow, fast = m(bev, tp, torch.zeros(2)), m(bev, tp, torch.tensor([4.0, 11.0]))
+        torch.manual_seed(0)
+        with_speed = Student(NetConfig(speed_input=True)).eval()(bev, tp, torch.tensor([4.0, 11.0]))
+    for k in ("path", "speed_wps", "mode_logits"):
+        torch.testing.assert_close(slow[k], fast[k], rtol=0, atol=0)
+    # the same weights with the speed input on answer the speed: the flag is what removes it
+    assert not torch.allclose(with_speed["speed_wps"], fast["speed_wps"])
+
+
+def test_a_checkpoint_saved_before_the_speed_flag_loads_with_the_speed_input_on(tmp_path):
+    torch.manual_seed(0)
+    f = save_checkpoint(tmp_path / "student.pt", Student(NetConfig()), {})
+    blob = torch.load(f, weights_only=True)
+    del blob["config"]["speed_input"]
+    torch.save(blob, f)
+    assert load_checkpoint(f)[0].cfg.speed_input is True
+
+
 # --- data: teacher files, augmentation -----------------------------------------------------
 N_FRAMES = 256  # two batches of 128
 

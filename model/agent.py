@@ -1,8 +1,10 @@
 """The student as a harness agent: ``--agent student --agent-config MODEL_CHECKPOINT``.
 
 Every 0.05 s tick: BEV (binarised as in training, model.cache.binarize), target point (ego
-frame, x forward, y left) [m] and speed [m/s] in; the network's path (20, 2) and speed
-waypoints (10, 2) out, through SimLingo's controller (controller.simlingo) to a Control.
+frame, x forward, y left) [m] and speed [m/s] in (the speed reaches the network only if
+its checkpoint has NetConfig.speed_input on; the controller always); the network's path
+(20, 2) and speed waypoints (10, 2) out, through SimLingo's controller
+(controller.simlingo) to a Control.
 run_step returns ``(Control, Prediction)`` so the harness logs the waypoints for the
 stability metrics and ``render``. The mode head is not used at inference.
 

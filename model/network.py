@@ -8,6 +8,9 @@ Data flow (B = batch)::
     bev (B, 9, 64, 64) in {0, 1}  --CNN-->  visual tokens (B, 64, D)     (8 x 8 grid, + position)
     target point (B, 2) [m], ego frame  --MLP-->  1 conditioning token    (B, 1, D)
     speed (B,) [m/s]                    --MLP-->  1 conditioning token    (B, 1, D)
+        (NetConfig.speed_input False, the default: the MLP sees 0, so the token is a
+        learned constant and the plan depends on the BEV and target point only; the
+        inertia problem of a student that sees its own speed, docs/student.md)
     20 learned path queries + 10 learned speed queries                    (B, 30, D)
     [conditioning | queries] --transformer decoder, cross-attending to the visual tokens-->
                                                               query outputs (B, 30, D)

@@ -20,8 +20,9 @@ repeated frame keeps its view and cut within the epoch.
 Data balance: 38 % of the recorded frames show the expert standing and still standing 2.5 s
 later (red lights, stop signs, queues), 6 % standing and then starting off. A student
 without memory cannot tell "just arrived" from "waited long enough", learns to stay once
-stopped and never starts again (in closed loop, a student trained on every frame stands
-55-76 % of the time and moves only when the 40 s creep rule fires). So each epoch draws:
+stopped and never starts again (in closed loop, a student with the speed input trained on
+every frame stands 55-76 % of the time and moves only when the 40 s creep rule fires). So
+each epoch draws:
 - no standing-and-staying frame while the expert waits at a stop sign (a third of them):
   the BEV stops drawing the stop line once the stop is made (harness.sim.stop_signs), but
   the expert then still waits STOP_CLEAR and for cross traffic, and from one BEV that wait

@@ -268,7 +268,8 @@ def test_a_model_checkpoint_round_trips(tmp_path):
     assert load_checkpoint(tmp_path)[1] == manifest  # a training --out folder works too
 
 
-def test_the_agent_onnx_network_gives_the_eager_outputs_to_rounding():
+@pytest.mark.parametrize("speed_input", [False, True])
+def test_the_agent_onnx_network_gives_the_eager_outputs_to_rounding(speed_input):
     """ONNX Runtime computes the torch module's function in float32 with other kernels
     (fused, reassociated sums), so outputs may differ by rounding only. Outputs reach 12-18 m,
     where one float32 ulp is 0.95-1.9e-6 m; over a few hundred inputs, for a fresh network
@@ -279,8 +280,9 @@ def test_the_agent_onnx_network_gives_the_eager_outputs_to_rounding():
     one bias of the path head: 2.0e-3 m)."""
     from model.runtime import OnnxNetwork
     torch.manual_seed(0)
-    m = Student(NetConfig()).eval()
+    m = Student(NetConfig(speed_input=speed_input)).eval()
     net = OnnxNetwork(m)
+    assert net.takes_speed is speed_input
     g = torch.Generator().manual_seed(1)
     worst = 0.0
     with torch.inference_mode():

@@ -143,16 +143,18 @@ def test_the_lookahead_point_by_hand():
     assert (x, y) == (pytest.approx(3.8, abs=1e-12), 0.0)
     assert lookahead_point(STRAIGHT[:2] * 0.05, 3.0, PATH_STEP) == (0.05, 0.0)  # 5 cm long: its last point
 
-def test_the_student_runs_its_network_only_for_new_inputs_and_repeats_give_its_outputs(tmp_path):
+@pytest.mark.parametrize("speed_input", [True, False])
+def test_the_student_runs_its_network_only_for_new_inputs_and_repeats_give_its_outputs(tmp_path, speed_input):
     """A tick whose inputs equal the previous tick's as the network sees them (binarised
-    BEV, float32 target point and speed) reuses the previous outputs; every output equals
-    a fresh network call on that tick's inputs, bit for bit, so records cannot change."""
+    BEV, float32 target point, and speed if the network takes it) reuses the previous
+    outputs; every output equals a fresh network call on that tick's inputs, bit for bit,
+    so records cannot change."""
     from model.cache import binarize
     from model.checkpoint import save_checkpoint
     from model.network import NetConfig, Student
     torch.manual_seed(0)
     agent = load_agent("student")
-    agent.setup(str(save_checkpoint(tmp_path / "student.pt", Student(NetConfig()), {})))
+    agent.setup(str(save_checkpoint(tmp_path / "student.pt", Student(NetConfig(speed_input=speed_input)), {})))
     rng = np.random.default_rng(0)
     a = (rng.random((9, 64, 64)) < 0.2).astype(np.uint8) * 255
     b = a.copy()
@@ -166,10 +168,12 @@ def test_the_student_runs_its_network_only_for_new_inputs_and_repeats_give_its_o
         fresh_path, fresh_wps = agent.infer(binarize(bev), target, speed)
         np.testing.assert_array_equal(path, fresh_path, err_msg=f"tick {k}")
         np.testing.assert_array_equal(wps, fresh_wps, err_msg=f"tick {k}")
-    assert (agent.frames, agent.network_calls) == (8, 5)  # 3 of the 8 ticks reused the outputs
+    # 3 of the 8 ticks reuse the outputs; without the speed input the last one too (only its speed is new)
+    calls = 5 if speed_input else 4
+    assert (agent.frames, agent.network_calls) == (8, calls)
     path[:] = np.nan  # a caller writing into the outputs does not reach the agent's copy
     assert np.isfinite(agent.predict(a, tp + 1e-3, 0.0)[0]).all()
-    assert agent.network_calls == 5
+    assert agent.network_calls == calls
     agent.setup(str(tmp_path / "student.pt"))  # a new route forgets the last inputs
     agent.predict(a, tp + 1e-3, 0.0)
     assert (agent.frames, agent.network_calls) == (1, 1)

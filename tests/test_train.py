@@ -157,6 +157,7 @@ def test_by_default_every_epoch_runs_and_the_best_is_saved(sets, tmp_path, monke
     _, m = load_checkpoint(_train(train_dir, tmp_path / "d", val=val_dir, epochs=4, epoch_steps=1))
     assert (m["chosen_epoch"], m["stop_reason"], m["epochs_run"], m["patience"]) == (1, "epochs", 4, None)
     assert [r["step"] for r in m["history"]] == [1, 2, 3, 4] and m["epoch_steps"] == 1
+    assert m["net"]["speed_input"] is False  # the manifest says what the network sees
     # --epoch-steps 0: an epoch is every whole batch of the balanced draw (2 on this dataset, as the default)
     losses = iter([1.0, 2.0])  # the validation losses of this second training
     _, m0 = load_checkpoint(_train(train_dir, tmp_path / "w", val=val_dir, epochs=2, epoch_steps=0))

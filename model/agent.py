@@ -88,8 +88,8 @@ class StudentAgent(AutonomousAgent):
         sp = np.float32(speed)
         self.frames += 1
         last = self._last
-        new_speed = self.network.takes_speed and sp != last[2] if last is not None else True
-        if last is None or new_speed or not np.array_equal(tp, last[1]) or not np.array_equal(x, last[0]):
+        if (last is None or (self.network.takes_speed and sp != last[2])
+                or not np.array_equal(tp, last[1]) or not np.array_equal(x, last[0])):
             self.network_calls += 1
             last = self._last = (x, tp, sp, *self.infer(x, tp, sp))
         return last[3].copy(), last[4].copy()

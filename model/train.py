@@ -64,8 +64,8 @@ Schedule length (EPOCHS x EPOCH_STEPS = 3,200 steps, 6-7 min on 2 cores): set by
 target for ``reproduce``, five arms of a seed trained and evaluated in <= 75 min on 2 cores
 (docs/results.md has the stage times). Its cost on ``val`` (seed 0, students with the speed
 input): best L_origin 1.896 (control) and 1.886 (SC-IMM) after 3,200 steps, against 1.732
-and 1.673 after 10 epochs of whole draws (7,902 steps, about 15 min). Longer trainings: ``--epochs`` and
-``--epoch-steps``.
+and 1.673 after 10 epochs of whole draws (7,902 steps, about 15 min). Longer trainings:
+``--epochs`` and ``--epoch-steps``.
 
 Determinism: torch.manual_seed(seed), deterministic algorithms, a fixed thread count, and
 one numpy generator (seed) for sample order and views, drawn for every epoch up front (an
@@ -330,7 +330,8 @@ def _manifest(cfg: TrainConfig, data: StudentData, val: StudentData | None, weig
     return {
         "data": str(cfg.data), "data_hash": data.digest, "val": str(cfg.val) if cfg.val else None,
         "val_hash": val.digest if val else None, "teacher": cfg.teacher, "seed": cfg.seed,
-        "git_commit": git_commit(), "net": cfg.net.to_dict(), "epochs": cfg.epochs, "epoch_steps": cfg.epoch_steps,
+        "git_commit": git_commit(), "net": cfg.net.to_dict(),
+        "epochs": cfg.epochs, "epoch_steps": cfg.epoch_steps,
         "patience": cfg.patience, "epochs_run": len(history),
         "steps": history[-1]["step"], "batch": BATCH, "frames": len(data), "loss_weights": asdict(weights),
         "schedule": {"lr": LR, "min_lr": MIN_LR, "warmup_steps": WARMUP_STEPS, "weight_decay": WEIGHT_DECAY,

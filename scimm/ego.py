@@ -21,6 +21,10 @@ v' = v + a dt is each mode's transition F_j (scimm.modes), so C leaves v and a a
 d comes from the two recorded positions: the chord |p_t - p_t-1| lengthened to the arc of
 a circle that turns by dyaw over it, d = chord * (dyaw / 2) / sin(dyaw / 2) (exact on a
 circle; +0.04 % at dyaw = 0.1 rad). A car standing still gives C = I, u = 0.
+
+``previous_in_current`` writes frame t-1's path points in frame t's ego frame with the
+recorded poses, and ``interp_rows`` reads such paths at given arc lengths (scimm.table2's
+moved metrics, scimm.planref's plan change).
 """
 from __future__ import annotations
 
@@ -61,3 +65,34 @@ def carry(x: np.ndarray, d: np.ndarray, dyaw: np.ndarray) -> np.ndarray:
     """States x (..., 5) carried by arcs d and turns dyaw (...): C x + u."""
     C, u = carry_inputs(d, dyaw)
     return np.einsum("...ab,...b->...a", C, np.asarray(x, dtype=float)) + u
+
+
+def previous_in_current(path: np.ndarray, pose: np.ndarray) -> np.ndarray:
+    """(T-1, K, 2): frame t-1's points path[t-1] (K, 2) [m, ego frame of t-1] written in frame
+    t's ego frame, for t = 1..T-1, with the recorded world poses (T, 3) (x, y [m], yaw [rad])."""
+    path, pose = np.asarray(path, dtype=float), np.asarray(pose, dtype=float)
+    dxy = pose[:-1, None, :2] - pose[1:, None, :2]  # (T-1, 1, 2) old ego minus new ego, world
+    c, s = np.cos(pose[:-1, 2:3]), np.sin(pose[:-1, 2:3])  # frame t-1 -> world
+    px, py = path[:-1, :, 0], path[:-1, :, 1]
+    wx, wy = c * px - s * py + dxy[..., 0], s * px + c * py + dxy[..., 1]  # relative to the new ego
+    c, s = np.cos(pose[1:, 2:3]), np.sin(pose[1:, 2:3])  # world -> frame t
+    return np.stack([c * wx + s * wy, -s * wx + c * wy], axis=-1)
+
+
+def interp_rows(x: np.ndarray, xp: np.ndarray, fp: np.ndarray) -> np.ndarray:
+    """np.interp row by row, vectorised: x (R, K) at increasing xp (R, N) with values fp (R, N)."""
+    R, N = xp.shape
+    i = np.clip(_searchsorted_rows(xp, x), 1, N - 1)
+    rows = np.arange(R)[:, None]
+    x0, x1, f0, f1 = xp[rows, i - 1], xp[rows, i], fp[rows, i - 1], fp[rows, i]
+    w = np.divide(x - x0, x1 - x0, out=np.zeros_like(x), where=x1 > x0)
+    return f0 + np.clip(w, 0.0, 1.0) * (f1 - f0)
+
+
+def _searchsorted_rows(xp: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """Per row r, np.searchsorted(xp[r], x[r]): rows shifted apart so one search serves all."""
+    R = len(xp)
+    span = max(float(np.nanmax(np.abs(xp))) if xp.size else 0.0, float(np.nanmax(np.abs(x))) if x.size else 0.0)
+    shift = (2.0 * span + 1.0) * np.arange(R)[:, None]
+    flat = np.searchsorted((xp + shift).ravel(), (x + shift).ravel()).reshape(x.shape)
+    return flat - xp.shape[1] * np.arange(R)[:, None]

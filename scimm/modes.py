@@ -96,8 +96,8 @@ class IMMConfig:
     # situation; the ego's own motion is not in it, the predict step carries it)
     Q0: np.ndarray = field(default_factory=lambda: np.stack([
         _diag(0.0095, 0.0038, 0.00019, 0.13, 0.23),  # Cruise: quiet path, steady speed
-        _diag(0.076, 0.028, 0.0015, 0.38, 0.64),     # Turn: curvature comes and goes; slowing into the turn
-        _diag(0.0095, 0.0038, 0.00019, 0.38, 0.19),  # Deceleration: speed changes at a steady deceleration
+        _diag(0.076, 0.028, 0.0015, 0.38, 0.26),     # Turn: curvature comes and goes; slowing into the turn
+        _diag(0.0095, 0.0038, 0.00019, 0.27, 0.15),  # Deceleration: speed changes at a steady deceleration
         _diag(0.11, 0.038, 0.0019, 0.19, 0.32),      # Avoidance: heading and curvature jump (a bypass starts)
         _diag(0.057, 0.019, 0.00095, 0.19, 0.32),    # Recovery: between Cruise and Avoidance
     ]))
@@ -111,7 +111,7 @@ class IMMConfig:
     # keeps the teacher's v(0) aligned with the expert's (offset 0 frames; the former 1.3
     # m/s against Q of 0.1-0.2 m/s lagged it one or two) and standing (<= 0.3 m/s) in 96 %
     # of the `val` frames where the expert has stood 0.5 s (87 % with 1.3 m/s)
-    R: np.ndarray = field(default_factory=lambda: _diag(0.019, 0.0048, 0.00029, 0.57, 0.57))
+    R: np.ndarray = field(default_factory=lambda: _diag(0.019, 0.0048, 0.00029, 0.34, 0.57))
     # P0: initial covariance of every mode (about one observation's uncertainty, x 1.9)
     P0: np.ndarray = field(default_factory=lambda: _diag(0.095, 0.038, 0.0019, 1.9, 1.9))
     # Pi0[i, j] = P(mode j | previous mode i): sticky (0.97 stay: without cues a mode lasts
@@ -126,6 +126,28 @@ class IMMConfig:
         [0.012, 0.006, 0.006, 0.006, 0.97],
     ]))
     mu0: np.ndarray = field(default_factory=lambda: np.array([0.6, 0.1, 0.1, 0.1, 0.1]))
+    # Path state: "ego", the quadratic heading of each frame's path in its ego frame
+    # (scimm.pathspeed, paper eq. 2-3), or "plan", the teacher's lateral offset from the
+    # expert's previous plan (scimm.planref), whose path states are in [m, -, 1/m] and use the
+    # plan_* noise below in place of the path entries of Q0, R and P0
+    path_state: str = "plan"
+    # plan_Q0_path[j]: sd of mode j's one-frame change of the offset quadratic, x 1.9: the RMS
+    # plan change per frame (z_path) on `val` where SC-IMM's dominant mode is j (Cruise 0.0017
+    # m, Turn 0.013, Deceleration 0.0028, Avoidance 0.006, Recovery 0.009), rounded up;
+    # Avoidance takes Recovery's (both follow a re-planned bypass)
+    plan_Q0_path: np.ndarray = field(default_factory=lambda: 1.9 * np.array([
+        [0.002, 0.0005, 0.00003],  # Cruise: the plan lies still
+        [0.013, 0.0024, 0.0001],   # Turn: re-planned through the junction
+        [0.003, 0.0012, 0.00007],  # Deceleration
+        [0.010, 0.0020, 0.0001],   # Avoidance: the bypass is re-planned
+        [0.010, 0.0020, 0.0001],   # Recovery: as Avoidance
+    ]))
+    # plan_R_path: sd of the fitted plan change, x 1.9: half of Deceleration's Q (the teacher
+    # follows a lasting change within a few frames); with R twice this the Fixed-IMM's Cruise
+    # path moved 1.14 x the plans' in the world on `val`, with this 1.07 x (docs/teacher.md)
+    plan_R_path: np.ndarray = field(default_factory=lambda: 1.9 * np.array([0.0015, 0.0005, 0.000025]))
+    # plan_P0_path: the first frame's teacher is the plan itself, known to about 3 R
+    plan_P0_path: np.ndarray = field(default_factory=lambda: 1.9 * np.array([0.0045, 0.0015, 0.000075]))
     # Feature scales: where each feature reaches 1
     curvature_scale: float = 0.08          # [1/m], a 12.5 m radius
     curvature_change_scale: float = 0.08   # [1/m] over the next 10 m
@@ -136,7 +158,7 @@ class IMMConfig:
     # extra logit for staying in mode j, per unit of its cue bonus: A[j, j] += 2 max(b_j, 0)
     # (a mode its cues support is left only when they stop supporting it; halves the
     # switches that a flickering cue, e.g. a target speed near the stop threshold, causes)
-    stay_gain: float = 2.0
+    stay_gain: float = 3.5
     # W_A[f, j]: logit bonus for entering mode j when feature f is 1 (columns in MODES
     # order). Five times the relative sizes of docs/teacher.md: the cues must outweigh the
     # likelihood of a single frame (x 1: SC-IMM's dominant mode agreed with the
@@ -177,14 +199,28 @@ class IMMConfig:
     def __post_init__(self) -> None:
         M, n = len(MODES), 5
         shapes = {"F": (M, n, n), "Q0": (M, n, n), "R": (n, n), "P0": (n, n), "Pi0": (M, M), "mu0": (M,),
-                  "W_A": (len(FEATURES), M), "W_gamma": (len(FEATURES), M)}
+                  "W_A": (len(FEATURES), M), "W_gamma": (len(FEATURES), M),
+                  "plan_Q0_path": (M, 3), "plan_R_path": (3,), "plan_P0_path": (3,)}
         for name, shape in shapes.items():
             if np.shape(getattr(self, name)) != shape:
                 raise ValueError(f"IMMConfig.{name} must have shape {shape}, got {np.shape(getattr(self, name))}")
+        if self.path_state not in ("ego", "plan"):
+            raise ValueError(f"IMMConfig.path_state must be 'ego' or 'plan', got {self.path_state!r}")
         if not np.allclose(self.Pi0.sum(axis=1), 1.0) or (self.Pi0 < 0).any():
             raise ValueError("IMMConfig.Pi0 rows must be probabilities summing to 1 (row = previous mode)")
         if not np.isclose(self.mu0.sum(), 1.0) or (self.mu0 < 0).any():
             raise ValueError("IMMConfig.mu0 must be probabilities summing to 1")
+
+    def noise(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(Q0 (5, 5, 5), R (5, 5), P0 (5, 5)) of the configured path state: the plan_* path
+        noise in place of Q0's, R's and P0's path block when path_state is "plan"."""
+        if self.path_state == "ego":
+            return self.Q0, self.R, self.P0
+        Q0, R, P0 = self.Q0.copy(), self.R.copy(), self.P0.copy()
+        Q0[:, :3, :3] = np.stack([np.diag(np.square(sd)) for sd in self.plan_Q0_path])
+        R[:3, :3] = np.diag(np.square(self.plan_R_path))
+        P0[:3, :3] = np.diag(np.square(self.plan_P0_path))
+        return Q0, R, P0
 
     def as_dict(self) -> dict:
         """Every parameter as plain lists/floats (for the teacher manifest)."""

@@ -51,7 +51,7 @@ PATH_S = PATH_STEP * np.arange(N_PATH)                     # (20,) arc length of
 CHORD_S = PATH_S[:-1] + 0.5 * PATH_STEP                    # (19,) chord midpoints [m]
 SPEED_TAU = SPEED_DT * np.arange(1, N_SPEED + 1)           # (10,) end of each speed interval [s]
 SPEED_MID = SPEED_TAU - 0.5 * SPEED_DT                     # (10,) interval midpoints [s]
-SPEED_WEIGHT_TAU = 1.0  # [s]: weight exp(-SPEED_MID / this) of each speed in the fit (docstring)
+SPEED_WEIGHT_TAU = 0.6  # [s]: weight exp(-SPEED_MID / this) of each speed in the fit (docstring)
 STATE_NAMES = ("c0", "c1", "c2", "v", "a")
 STATE_UNITS = ("rad", "1/m", "1/m^2", "m/s", "m/s^2")
 

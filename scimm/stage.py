@@ -40,9 +40,12 @@ def dataset_episodes(data: str | Path | None) -> tuple[Path, list[Path]]:
     return folder, files
 
 
-def make_teachers(folder: Path, files: list[Path], methods: tuple[str, ...]) -> dict[str, Path]:
-    """Run each teacher of ``methods`` over the episodes and write its folder; returns them."""
-    cfg = IMMConfig()
+def make_teachers(folder: Path, files: list[Path], methods: tuple[str, ...],
+                  path_state: str = IMMConfig.path_state) -> dict[str, Path]:
+    """Run each teacher of ``methods`` over the episodes with the path state ``path_state``
+    ("plan" or "ego", scimm.modes.IMMConfig; default the config's) and write its folder;
+    returns them."""
+    cfg = IMMConfig(path_state=path_state)
     written = {}
     for method in methods:
         with tqdm(total=len(files), desc=f"teacher {method}", unit="episode", disable=None) as bar:

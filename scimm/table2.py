@@ -33,6 +33,7 @@ import numpy as np
 import pandas as pd
 
 from scimm import pathspeed
+from scimm.ego import interp_rows, previous_in_current
 from scimm.modes import AVOID, DECEL, MODES, RECOVER, TURN
 
 DT = 0.25  # frame period [s]
@@ -108,47 +109,23 @@ def moved_metrics(path: np.ndarray, speed: np.ndarray, pose: np.ndarray) -> dict
     if T < 2:
         return out
     out["speed_delta_moved"][1:] = np.mean(np.abs(speed[1:, :-1] - speed[:-1, 1:]), axis=1)
-    dxy = pose[:-1, None, :2] - pose[1:, None, :2]  # (T-1, 1, 2) old ego minus new ego, world
     dyaw = pose[:-1, 2] - pose[1:, 2]  # (T-1,) rotation from frame t-1 to frame t
-    c, s_ = np.cos(pose[:-1, 2:3]), np.sin(pose[:-1, 2:3])  # frame t-1 -> world
-    px, py = path[:-1, :, 0], path[:-1, :, 1]
-    wx, wy = c * px - s_ * py + dxy[..., 0], s_ * px + c * py + dxy[..., 1]  # relative to the new ego
-    c, s_ = np.cos(pose[1:, 2:3]), np.sin(pose[1:, 2:3])  # world -> frame t
-    old = np.stack([c * wx + s_ * wy, -s_ * wx + c * wy], axis=-1)  # (T-1, 20, 2)
-    d = np.hypot(dxy[:, 0, 0], dxy[:, 0, 1])  # (T-1,)
+    old = previous_in_current(path, pose)  # (T-1, 20, 2)
+    d = np.hypot(*(pose[1:, :2] - pose[:-1, :2]).T)  # (T-1,)
     seg = np.hypot(*np.diff(path[:-1], axis=1).transpose(2, 0, 1))  # (T-1, 19) chord lengths of t-1
     cum = np.concatenate([np.zeros((T - 1, 1)), np.cumsum(seg, axis=1)], axis=1)  # (T-1, 20)
     want = pathspeed.PATH_S[None, :] + d[:, None]  # (T-1, 20) arc length on t-1's path
     inside = want <= cum[:, -1:]
-    y_old = _interp_rows(want, cum, old[..., 1])
+    y_old = interp_rows(want, cum, old[..., 1])
     out["lat_delta_moved"][1:] = _masked_mean(np.abs(path[1:, :, 1] - y_old), inside)
     psi_new = pathspeed.chord_headings(path[1:])  # (T-1, 19) at s_k + 0.5
     psi_old = pathspeed.chord_headings(path[:-1]) + dyaw[:, None]  # in frame t's axes
     mid = 0.5 * (cum[:, 1:] + cum[:, :-1])  # chord midpoints of t-1 [m]
     want_mid = pathspeed.CHORD_S[None, :] + d[:, None]
     inside_mid = (want_mid >= mid[:, :1]) & (want_mid <= mid[:, -1:])
-    turned = np.abs(psi_new - _interp_rows(want_mid, mid, psi_old))
+    turned = np.abs(psi_new - interp_rows(want_mid, mid, psi_old))
     out["heading_delta_moved"][1:] = _masked_mean(np.abs((turned + np.pi) % (2 * np.pi) - np.pi), inside_mid)
     return out
-
-
-def _interp_rows(x: np.ndarray, xp: np.ndarray, fp: np.ndarray) -> np.ndarray:
-    """np.interp row by row, vectorised: x (R, K) at increasing xp (R, N) with values fp (R, N)."""
-    R, N = xp.shape
-    i = np.clip(_searchsorted_rows(xp, x), 1, N - 1)
-    rows = np.arange(R)[:, None]
-    x0, x1, f0, f1 = xp[rows, i - 1], xp[rows, i], fp[rows, i - 1], fp[rows, i]
-    w = np.divide(x - x0, x1 - x0, out=np.zeros_like(x), where=x1 > x0)
-    return f0 + np.clip(w, 0.0, 1.0) * (f1 - f0)
-
-
-def _searchsorted_rows(xp: np.ndarray, x: np.ndarray) -> np.ndarray:
-    """Per row r, np.searchsorted(xp[r], x[r]): rows shifted apart so one search serves all."""
-    R = len(xp)
-    span = max(float(np.nanmax(np.abs(xp))) if xp.size else 0.0, float(np.nanmax(np.abs(x))) if x.size else 0.0)
-    shift = (2.0 * span + 1.0) * np.arange(R)[:, None]
-    flat = np.searchsorted((xp + shift).ravel(), (x + shift).ravel()).reshape(x.shape)
-    return flat - xp.shape[1] * np.arange(R)[:, None]
 
 
 def _masked_mean(values: np.ndarray, mask: np.ndarray) -> np.ndarray:

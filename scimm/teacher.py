@@ -8,7 +8,10 @@ the recorded poses give the ego's motion from frame t-1 to t, the known input th
 the state into frame t's ego frame (scimm.ego, SPEC §6.2); scimm.imm.imm_filter gives the
 fused state x_t^T (paper eq. 7) and mu_t; the teacher labels are
 pathspeed.state_path(x_t^T) and pathspeed.state_speeds(x_t^T). Every mode starts at the
-first observation with covariance P0.
+first observation with covariance P0. With ``IMMConfig.path_state == "plan"`` the path part
+of z_t is instead the change of the expert's plan from frame t-1's, the known input rebases
+and carries the state along that plan, and the path teacher is the plan moved by the
+filter's correction (scimm.planref).
 
 Methods: ``fixed`` (Fixed-IMM), ``scimm`` (SC-IMM), ``smoother`` (the SC-IMM forward pass
 followed by the fixed-interval IMM smoother, scimm.smoother: a non-causal offline teacher
@@ -35,7 +38,7 @@ from pathlib import Path
 import numpy as np
 
 from harness.common.atomic import write_atomic
-from scimm import pathspeed
+from scimm import pathspeed, planref
 from scimm.cues import cue_vector
 from scimm.ego import carry_inputs, pose_change
 from scimm.imm import imm_filter
@@ -62,12 +65,17 @@ def dataset_fingerprint(files: Sequence[Path]) -> str:
     return h.hexdigest()
 
 
-def load_inputs(file: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(z (T, 5) observations, s (T, 16) cues, pose (T, 3) world x, y [m], yaw [rad]) of one
-    episode file."""
+def load_inputs(file: Path, path_state: str = "ego") -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """(z (T, 5) observations, s (T, 16) cues, pose (T, 3) world x, y [m], yaw [rad], the
+    expert's path (T, 20, 2) [m, ego frame]) of one episode file. z's path part is that of
+    ``path_state`` (scimm.modes.IMMConfig): the heading quadratic of each path ("ego") or
+    the change of the plan from the previous frame's ("plan", scimm.planref)."""
     with np.load(file, allow_pickle=False) as a:
         pose = np.stack([a["x"], a["y"], a["yaw"]], axis=-1).astype(float)
-        return pathspeed.observe(a["path"], a["speed_wps"]), cue_vector(a), pose
+        z = pathspeed.observe(a["path"], a["speed_wps"])
+        if path_state == "plan":
+            z[:, :3] = planref.plan_change(a["path"], pose)[0]
+        return z, cue_vector(a), pose, np.asarray(a["path"], dtype=float)
 
 
 def run_imm(z: np.ndarray, s: np.ndarray, method: str, cfg: IMMConfig, pose: np.ndarray | None = None,
@@ -83,15 +91,19 @@ def run_imm(z: np.ndarray, s: np.ndarray, method: str, cfg: IMMConfig, pose: np.
         A, gamma = fixed_adjustment((B, T))
     else:
         raise ValueError(f"unknown method {method!r} (one of {', '.join(METHODS)})")
-    Pi, Q = conditioned(cfg.Pi0, cfg.Q0, A, gamma)
+    Q0, R, P0 = cfg.noise()
+    Pi, Q = conditioned(cfg.Pi0, Q0, A, gamma)
     first = np.nan_to_num(z[:, 0])
     x0 = np.broadcast_to(first[:, None, :], (B, 5, 5)).copy()
-    P0 = np.broadcast_to(cfg.P0, (5, 5, 5)).copy()
+    P0 = np.broadcast_to(P0, (5, 5, 5)).copy()
     move = {}
     if pose is not None:
-        d, dyaw = zip(*(pose_change(*p.T) for p in np.asarray(pose, dtype=float)))
-        move = dict(zip(("carry", "shift"), carry_inputs(np.array(d), np.array(dyaw))))
-    res = imm_filter(z, cfg.F, Q, cfg.R, x0, P0, Pi, cfg.mu0, keep_P_modes=method == "smoother", **move)
+        d, dyaw = (np.array(v) for v in zip(*(pose_change(*p.T) for p in np.asarray(pose, dtype=float))))
+        if cfg.path_state == "plan":
+            move = dict(zip(("carry", "shift"), planref.known_input(z[..., :3], d)))
+        else:
+            move = dict(zip(("carry", "shift"), carry_inputs(d, dyaw)))
+    res = imm_filter(z, cfg.F, Q, R, x0, P0, Pi, cfg.mu0, keep_P_modes=method == "smoother", **move)
     if method == "smoother":
         sm = imm_smooth(res, cfg.F, Q, Pi, lengths=lengths, **move)
         return sm.x, sm.mu
@@ -102,7 +114,7 @@ def teach(files: Sequence[Path], method: str, cfg: IMMConfig,
           progress: Callable[[int], None] | None = None) -> dict[str, dict[str, np.ndarray]]:
     """Teacher labels {episode stem: {"path", "speed", "mu"}} (float32, contract shapes) of
     the episode files, computed in length-sorted batches; ``progress(n)`` after each batch."""
-    inputs = {f.stem: load_inputs(f) for f in files}
+    inputs = {f.stem: load_inputs(f, cfg.path_state) for f in files}
     stems = sorted(inputs, key=lambda k: len(inputs[k][0]))
     out = {}
     for lo in range(0, len(stems), BATCH):
@@ -114,12 +126,16 @@ def teach(files: Sequence[Path], method: str, cfg: IMMConfig,
         lengths = np.array([len(inputs[k][0]) for k in group])
         for b, k in enumerate(group):
             n = lengths[b]
-            z[b, :n], s[b, :n], pose[b, :n] = inputs[k]
+            z[b, :n], s[b, :n], pose[b, :n] = inputs[k][:3]
             pose[b, n:] = pose[b, n - 1] if n else 0.0  # padding stands still
         x, mu = run_imm(z, s, method, cfg, pose, lengths)
         for b, k in enumerate(group):
             n = len(inputs[k][0])
-            out[k] = {"path": pathspeed.state_path(x[b, :n]).astype(np.float32),
+            if cfg.path_state == "plan":
+                path = planref.teacher_path(inputs[k][3], x[b, :n, :3], z[b, :n, :3])
+            else:
+                path = pathspeed.state_path(x[b, :n])
+            out[k] = {"path": path.astype(np.float32),
                       "speed": pathspeed.state_speeds(x[b, :n]).astype(np.float32),
                       "mu": mu[b, :n].astype(np.float32)}
         if progress:

@@ -1,6 +1,6 @@
 """``sumo-scimm teacher ...``: the teacher stage's subcommands (SPEC §6).
 
-    sumo-scimm teacher --data DIR [--method fixed|scimm|smoother|all]
+    sumo-scimm teacher --data DIR [--method fixed|scimm|smoother|all] [--path-state plan|ego]
         writes DIR/teacher/<method>/ (scimm.teacher), then, when every method's folder is
         complete, prints paper Table 2 (also DIR/teacher/table2.csv), the mode-meaning
         check (also DIR/teacher/mode_meaning.csv), the fit residual of the observation per
@@ -16,6 +16,7 @@ from pathlib import Path
 
 from harness.common.errors import BadInput
 from scimm import teacher as tch
+from scimm.modes import IMMConfig
 from scimm.stage import dataset_episodes, make_teachers, write_tables
 
 METHOD_CHOICES = (*tch.METHODS, "all")
@@ -25,7 +26,7 @@ def _teacher(args: argparse.Namespace) -> int:
     from scimm.lag import format_lag, format_stops_starts
     from scimm.table2 import format_meaning, format_residuals, format_table2
     folder, files = dataset_episodes(args.data)
-    make_teachers(folder, files, tch.METHODS if args.method == "all" else (args.method,))
+    make_teachers(folder, files, tch.METHODS if args.method == "all" else (args.method,), args.path_state)
     if not all(tch.is_complete(folder, m) for m in tch.METHODS):
         print(f"Table 2 needs every teacher ({', '.join(tch.METHODS)}): run with --method all")
         return 0
@@ -69,6 +70,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     t.add_argument("--data", help="dataset folder (of 'sumo-scimm collect')")
     t.add_argument("--method", default="all", choices=METHOD_CHOICES,
                    help="teacher to compute (default all: fixed, scimm and smoother)")
+    t.add_argument("--path-state", default=IMMConfig.path_state, choices=("plan", "ego"),
+                   help="the IMM's path state: plan (default), the teacher's offset from the expert's previous "
+                        "plan; ego, the heading quadratic of each frame's path in its ego frame (docs/teacher.md)")
     t.set_defaults(func=_teacher)
     tsub = t.add_subparsers(dest="teacher_action", parser_class=type(t), metavar="{plot}")
     p = tsub.add_parser("plot", help="paper Fig. 4: BEV of a few frames and the mode posterior over time")

@@ -68,10 +68,11 @@ def test_zero_weights_and_fixed_method_are_the_fixed_imm_exactly():
     a = synthetic_episode(40, turn=slice(10, 25))
     z, s = ps.observe(a["path"], a["speed_wps"])[None], cue_vector(a)[None]
     cfg = IMMConfig()
+    Q0, R, P0 = cfg.noise()  # of the default path state
     x_fixed, mu_fixed = run_imm(z, s, "fixed", cfg)
     # the plain IMM with constant Pi0, Q0 (A = 0, gamma = 1 not even built)
     x0 = np.broadcast_to(z[:, 0][:, None], (1, 5, 5))
-    plain = imm_filter(z, cfg.F, cfg.Q0, cfg.R, x0, np.broadcast_to(cfg.P0, (5, 5, 5)), cfg.Pi0, cfg.mu0)
+    plain = imm_filter(z, cfg.F, Q0, R, x0, np.broadcast_to(P0, (5, 5, 5)), cfg.Pi0, cfg.mu0)
     # softmax(log Pi0) re-normalises Pi0: equal to rounding, 1e-12 is far above it
     np.testing.assert_allclose(x_fixed, plain.x, rtol=0, atol=1e-12)
     np.testing.assert_allclose(mu_fixed, plain.mu, rtol=0, atol=1e-12)
@@ -84,21 +85,23 @@ def test_zero_weights_and_fixed_method_are_the_fixed_imm_exactly():
 def test_scene_adjustment_is_stochastic_and_keeps_structural_zeros():
     a = synthetic_episode(30, turn=slice(5, 20))
     cfg = IMMConfig()
+    Q0, R, P0 = cfg.noise()  # of the default path state
     Pi0 = cfg.Pi0.copy()
     Pi0[CRUISE_ROW := 0, RECOVER] = 0.0  # Cruise never goes straight to Recovery
     Pi0[0] /= Pi0[0].sum()
     A, gamma = scene_adjustment(cue_vector(a)[None], cfg)
     A[..., RECOVER] += 50.0  # even a huge finite bonus
-    Pi, Q = conditioned(Pi0, cfg.Q0, A, gamma)
+    Pi, Q = conditioned(Pi0, Q0, A, gamma)
     assert (Pi[..., CRUISE_ROW, RECOVER] == 0.0).all()
     np.testing.assert_allclose(Pi.sum(axis=-1), 1.0, rtol=0, atol=1e-12)
     assert (gamma > 0).all()
-    np.testing.assert_allclose(Q, gamma[..., None, None] * cfg.Q0, rtol=0, atol=0)
+    np.testing.assert_allclose(Q, gamma[..., None, None] * Q0, rtol=0, atol=0)
 
 
 def test_common_gamma_on_identical_modes_is_a_kalman_filter_with_scaled_noise():
     rng = np.random.default_rng(3)
     cfg = IMMConfig()
+    Q0, R, P0 = cfg.noise()  # of the default path state
     T = 30
     z = rng.normal(size=(1, T, 5))
     # well-conditioned unit-scale matrices: the reduction is structural, not about our units
@@ -123,17 +126,18 @@ def test_scene_conditioned_posterior_is_a_distribution_and_mode_permutation_perm
     rng = np.random.default_rng(4)
     a = synthetic_episode(60, turn=slice(20, 40))
     cfg = IMMConfig()
+    Q0, R, P0 = cfg.noise()  # of the default path state
     z = ps.observe(a["path"], a["speed_wps"])[None]
     A, gamma = scene_adjustment(cue_vector(a)[None], cfg)
-    Pi, Q = conditioned(cfg.Pi0, cfg.Q0, A, gamma)
+    Pi, Q = conditioned(cfg.Pi0, Q0, A, gamma)
     x0 = np.broadcast_to(z[:, 0][:, None], (1, 5, 5))
-    P0 = np.broadcast_to(cfg.P0, (5, 5, 5))
-    res = imm_filter(z, cfg.F, Q, cfg.R, x0, P0, Pi, cfg.mu0)
+    P0 = np.broadcast_to(P0, (5, 5, 5))
+    res = imm_filter(z, cfg.F, Q, R, x0, P0, Pi, cfg.mu0)
     assert (res.mu >= 0).all()
     np.testing.assert_allclose(res.mu.sum(-1), 1.0, rtol=0, atol=1e-12)
     assert (np.linalg.eigvalsh(res.P) > -1e-10 * np.trace(res.P, axis1=-2, axis2=-1)[..., None]).all()
     p = rng.permutation(5)
-    per = imm_filter(z, cfg.F[p], Q[:, :, p], cfg.R, x0, P0, Pi[..., p, :][..., :, p], cfg.mu0[p])
+    per = imm_filter(z, cfg.F[p], Q[:, :, p], R, x0, P0, Pi[..., p, :][..., :, p], cfg.mu0[p])
     np.testing.assert_allclose(per.mu, res.mu[..., p], rtol=0, atol=1e-12)
     np.testing.assert_allclose(per.x, res.x, rtol=0, atol=1e-10)  # same sum, other order
 

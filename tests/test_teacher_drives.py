@@ -15,7 +15,7 @@ def _teach(a, method, compensated=True):
     """(observations z (T, 5), fused states x (T, 5), posteriors mu (T, 5)) of one episode."""
     z, s = ps.observe(a["path"], a["speed_wps"])[None], cue_vector(a)[None]
     pose = np.stack([a["x"], a["y"], a["yaw"]], axis=-1)[None] if compensated else None
-    x, mu = run_imm(z, s, method, IMMConfig(), pose)
+    x, mu = run_imm(z, s, method, IMMConfig(path_state="ego"), pose)
     return z[0], x[0], mu[0]
 
 

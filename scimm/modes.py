@@ -97,7 +97,11 @@ class IMMConfig:
     Q0: np.ndarray = field(default_factory=lambda: np.stack([
         _diag(0.0095, 0.0038, 0.00019, 0.13, 0.23),  # Cruise: quiet path, steady speed
         _diag(0.076, 0.028, 0.0015, 0.38, 0.26),     # Turn: curvature comes and goes; slowing into the turn
+        #   (acceleration noise 0.64 before the speed R above was lowered: the Turn frames'
+        #   speed teacher then changed more from frame to frame than the labels on `val`)
         _diag(0.0095, 0.0038, 0.00019, 0.27, 0.15),  # Deceleration: speed changes at a steady deceleration
+        #   (0.38, 0.19 before: the Fixed-IMM, in Deceleration through a junction, carried a
+        #   constant acceleration into the far speeds there)
         _diag(0.11, 0.038, 0.0019, 0.19, 0.32),      # Avoidance: heading and curvature jump (a bypass starts)
         _diag(0.057, 0.019, 0.00095, 0.19, 0.32),    # Recovery: between Cruise and Avoidance
     ]))
@@ -107,10 +111,11 @@ class IMMConfig:
     # curvature error into the heading, by c1 d + c2 d^2 over the d = 1-4 m driven; with
     # the full share the Cruise Lat delta with the motion taken out was 11.6 x the labels'
     # on `val`, with half 6.6 x). Speed: the labels are the expert's own future, so the
-    # speed "noise" is only the straight line's misfit: 0.3 m/s (0.57 after the x 1.9)
-    # keeps the teacher's v(0) aligned with the expert's (offset 0 frames; the former 1.3
-    # m/s against Q of 0.1-0.2 m/s lagged it one or two) and standing (<= 0.3 m/s) in 96 %
-    # of the `val` frames where the expert has stood 0.5 s (87 % with 1.3 m/s)
+    # speed "noise" is only the straight line's misfit: 0.18 m/s (0.34 after the x 1.9)
+    # keeps the teachers' v(0) aligned with the expert's (offset 0 frames; 1.3 m/s against
+    # Q of 0.1-0.2 m/s lagged it one or two, 0.3 m/s with the 1 s speed weight left the
+    # smoother one frame early) and standing (<= 0.3 m/s) in 96-97 % of the `val` frames
+    # where the expert has stood 0.5 s (87 % with 1.3 m/s)
     R: np.ndarray = field(default_factory=lambda: _diag(0.019, 0.0048, 0.00029, 0.34, 0.57))
     # P0: initial covariance of every mode (about one observation's uncertainty, x 1.9)
     P0: np.ndarray = field(default_factory=lambda: _diag(0.095, 0.038, 0.0019, 1.9, 1.9))
@@ -126,10 +131,11 @@ class IMMConfig:
         [0.012, 0.006, 0.006, 0.006, 0.97],
     ]))
     mu0: np.ndarray = field(default_factory=lambda: np.array([0.6, 0.1, 0.1, 0.1, 0.1]))
-    # Path state: "ego", the quadratic heading of each frame's path in its ego frame
-    # (scimm.pathspeed, paper eq. 2-3), or "plan", the teacher's lateral offset from the
-    # expert's previous plan (scimm.planref), whose path states are in [m, -, 1/m] and use the
-    # plan_* noise below in place of the path entries of Q0, R and P0
+    # Path state: "plan", the teacher's lateral offset from the expert's previous plan
+    # (scimm.planref), whose path states are in [m, -, 1/m] and use the plan_* noise below
+    # in place of the path entries of Q0, R and P0; or "ego", the quadratic heading of each
+    # frame's path in its ego frame (scimm.pathspeed, paper eq. 2-3), whose path moves in the
+    # world up to 16 x as much as the expert's on the training set (docs/teacher.md)
     path_state: str = "plan"
     # plan_Q0_path[j]: sd of mode j's one-frame change of the offset quadratic, x 1.9: the RMS
     # plan change per frame (z_path) on `val` where SC-IMM's dominant mode is j (Cruise 0.0017
@@ -155,9 +161,11 @@ class IMMConfig:
     lateral_change_scale: float = 0.25     # [m per frame]
     speed_drop_scale: float = 2.0          # [m/s] above the target
     stop_target_speed: float = 2.0         # [m/s]: stop_target = 1 - target / this, >= 0
-    # extra logit for staying in mode j, per unit of its cue bonus: A[j, j] += 2 max(b_j, 0)
+    # extra logit for staying in mode j, per unit of its cue bonus: A[j, j] += 3.5 max(b_j, 0)
     # (a mode its cues support is left only when they stop supporting it; halves the
-    # switches that a flickering cue, e.g. a target speed near the stop threshold, causes)
+    # switches that a flickering cue, e.g. a target speed near the stop threshold, causes;
+    # 3.5 rather than 2 keeps SC-IMM's switches under half the Fixed-IMM's on `val` with
+    # the path state "plan", whose quiet path tells the Fixed-IMM's modes apart less)
     stay_gain: float = 3.5
     # W_A[f, j]: logit bonus for entering mode j when feature f is 1 (columns in MODES
     # order). Five times the relative sizes of docs/teacher.md: the cues must outweigh the

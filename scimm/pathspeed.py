@@ -32,10 +32,13 @@ tau = 0.25 (k+1) s") is the same interval mean, comparable with eq. 12 of a pred
 The speed fit is weighted, interval k by exp(-(tau_k - 0.125 s) / SPEED_WEIGHT_TAU): a real
 profile is not a line (a stop within the 2.5 s bends it), and an unweighted line through
 all ten speeds reads at tau = 0 part of what comes later; on the `val` dataset its v(0)
-matched the expert's one frame (0.25 s) *ahead* better than the same frame. With a 1 s
-weight the fitted v(0) aligns with the expert's at offset 0 (mean |difference| 0.135 m/s,
-against 0.231 m/s unweighted), for an RMS fit residual of 0.239 m/s over the ten speeds
-(0.216 unweighted). A linear profile is still fitted exactly.
+matched the expert's one frame (0.25 s) *ahead* better than the same frame. With a 0.6 s
+weight the fitted v(0) matches the expert's v(0) of the same frame (mean |difference|
+0.092 m/s, 0.153 one frame ahead); with 1 s it was 0.135 against 0.145, too close for a
+teacher without delay (the IMM smoother, which then read one frame early), for an RMS fit
+residual of 0.281 m/s over the ten speeds (0.239 with 1 s, 0.216 unweighted). A linear
+profile is still fitted exactly. The price is the profile ahead: the line follows the next
+second more and the rest less (docs/teacher.md, "Lag").
 
 All functions are batched over any leading axes (frames, episodes).
 """

@@ -1,6 +1,7 @@
-"""The teacher's path as an offset from the expert's previous plan (``path_state="plan"``).
+"""The teacher's path as an offset from the expert's previous plan (``path_state="plan"``,
+the default of scimm.modes.IMMConfig).
 
-The default path state (scimm.pathspeed) is the quadratic heading fitted to each frame's
+The path state ``ego`` (scimm.pathspeed) is the quadratic heading fitted to each frame's
 path in that frame's ego frame. A three-number fit over a window that slides 1-4 m a
 frame changes as it slides, even where the expert's plan lies still on the road, so the
 teacher's path moves in the world more than the plan does (docs/teacher.md). Here the

@@ -65,7 +65,8 @@ def dataset_fingerprint(files: Sequence[Path]) -> str:
     return h.hexdigest()
 
 
-def load_inputs(file: Path, path_state: str = "ego") -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+def load_inputs(file: Path, path_state: str = IMMConfig.path_state
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """(z (T, 5) observations, s (T, 16) cues, pose (T, 3) world x, y [m], yaw [rad], the
     expert's path (T, 20, 2) [m, ego frame]) of one episode file. z's path part is that of
     ``path_state`` (scimm.modes.IMMConfig): the heading quadratic of each path ("ego") or

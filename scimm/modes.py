@@ -173,8 +173,9 @@ class IMMConfig:
     # extra logit for staying in mode j, per unit of its cue bonus: A[j, j] += 2 max(b_j, 0)
     # (a mode its cues support is left only when they stop supporting it; halves the
     # switches that a flickering cue, e.g. a target speed near the stop threshold, causes;
-    # with the speed settings above SC-IMM switches 0.45 x as often as the Fixed-IMM on
-    # `val`; 3.5, needed with the settings before, gave 0.55 x with these)
+    # chosen with the speed settings above: SC-IMM switches 0.45 x as often as the
+    # Fixed-IMM on `val`; 3.5, needed with the settings before, gives 0.43 x with these
+    # and every other target figure within 0.005)
     stay_gain: float = 2.0
     # W_A[f, j]: logit bonus for entering mode j when feature f is 1 (columns in MODES
     # order). Five times the relative sizes of docs/teacher.md: the cues must outweigh the
@@ -198,8 +199,9 @@ class IMMConfig:
     ]))
     # W_gamma[f, j]: log noise scale of mode j when feature f is 1 (exp(1) = 2.7x)
     W_gamma: np.ndarray = field(default_factory=lambda: np.array([
-        [0.0, 0.0, 0.0, 0.0, 0.0],   # turn_command (0.5 before: with Turn's own noise large,
-        #                              the extra scale moved the profile more than the labels)
+        [0.0, 0.0, 0.0, 0.0, 0.0],   # turn_command (0.5 before: on top of Turn's own noise it let
+        #   the profile through a junction move more from frame to frame: SC-IMM's Turn Speed
+        #   delta 0.87 x the labels' on `val` with it, 0.85 x without)
         [0.0, 0.0, 0.0, 0.0, 0.0],   # curvature
         [0.0, 0.0, 0.0, 0.0, 0.0],   # curvature_change
         [0.0, 0.0, 0.0, 0.0, 0.0],   # lateral_offset

@@ -88,20 +88,19 @@ class IMMConfig:
     # The speed entries (the acceleration decays in F, the v and a columns of Q0 and R) were
     # chosen together on `val` (docs/teacher.md, "How the numbers were chosen"): a line
     # v + a tau that follows the expert's v(0) without delay moves its far end with every
-    # change of slope, so Speed delta (same tau, frame to frame) and the lag pull apart; the
-    # values below keep every teacher's Speed delta at most 0.93 x the labels' in every mode
-    # group, v(0) aligned at offset 0 and standing where the expert stands, with the least
-    # lag into stops and out of them found (SC-IMM 1.25 s ahead: +0.29 m/s braking for a red
-    # light, -0.37 starting off, against +0.15 / -0.65 with the settings before, whose
-    # Fixed-IMM Turn Speed delta was 1.09 x the labels')
+    # change of slope, so Speed delta (same tau, frame to frame) and the lag pull apart; on
+    # `val` the values below keep every teacher's Speed delta at most 0.93 x the labels' in
+    # every mode group, v(0) aligned at offset 0 and standing where the expert stands, with
+    # the least lag into stops and out of them found (SC-IMM 1.25 s ahead: +0.29 m/s braking
+    # for a red light, -0.37 starting off)
     # F_j: (path decay, acceleration decay) per mode; 1 = random walk / constant acceleration
     F: np.ndarray = field(default_factory=lambda: np.stack([
         _transition(1.0, 0.7),   # Cruise: acceleration fades (30 % a frame): the profile flattens
         _transition(1.0, 0.2),   # Turn: acceleration fades fast; a speed change shows in v's noise
         #   (the profile's slope through a junction is what moves its far end frame to frame)
         _transition(1.0, 0.75),  # Deceleration: acceleration persists through a braking
-        #   (1.0 before: the Fixed-IMM, often in Deceleration through a junction, carried a
-        #   constant acceleration into the far speeds there)
+        #   (not constant: the Fixed-IMM, often in Deceleration through a junction, would carry
+        #   a constant acceleration into the far speeds there)
         _transition(1.0, 0.45),  # Avoidance: acceleration fades
         _transition(0.85, 0.45),  # Recovery: heading and curvature back to the lane, 15 % a frame
     ]))
@@ -144,7 +143,7 @@ class IMMConfig:
     # (scimm.planref), whose path states are in [m, -, 1/m] and use the plan_* noise below
     # in place of the path entries of Q0, R and P0; or "ego", the quadratic heading of each
     # frame's path in its ego frame (scimm.pathspeed, paper eq. 2-3), whose path moves in the
-    # world up to 16 x as much as the expert's on the training set (docs/teacher.md)
+    # world up to 17 x as much as the expert's on the training set (docs/teacher.md)
     path_state: str = "plan"
     # plan_Q0_path[j]: sd of mode j's one-frame change of the offset quadratic, x 1.9: the RMS
     # plan change per frame (z_path) on `val` where SC-IMM's dominant mode is j (Cruise 0.0017
@@ -174,8 +173,7 @@ class IMMConfig:
     # (a mode its cues support is left only when they stop supporting it; halves the
     # switches that a flickering cue, e.g. a target speed near the stop threshold, causes;
     # chosen with the speed settings above: SC-IMM switches 0.45 x as often as the
-    # Fixed-IMM on `val`; 3.5, needed with the settings before, gives 0.43 x with these
-    # and every other target figure within 0.005)
+    # Fixed-IMM on `val`; 3.5 gives 0.43 x and every other target figure within 0.005)
     stay_gain: float = 2.0
     # W_A[f, j]: logit bonus for entering mode j when feature f is 1 (columns in MODES
     # order). Five times the relative sizes of docs/teacher.md: the cues must outweigh the
@@ -199,9 +197,9 @@ class IMMConfig:
     ]))
     # W_gamma[f, j]: log noise scale of mode j when feature f is 1 (exp(1) = 2.7x)
     W_gamma: np.ndarray = field(default_factory=lambda: np.array([
-        [0.0, 0.0, 0.0, 0.0, 0.0],   # turn_command (0.5 before: on top of Turn's own noise it let
-        #   the profile through a junction move more from frame to frame: SC-IMM's Turn Speed
-        #   delta 0.87 x the labels' on `val` with it, 0.85 x without)
+        [0.0, 0.0, 0.0, 0.0, 0.0],   # turn_command (no extra noise: Turn's own is large; a scale
+        #   of exp(0.5) let the profile through a junction move more from frame to frame, SC-IMM's
+        #   Turn Speed delta 0.87 x the labels' on `val` against 0.85 x without)
         [0.0, 0.0, 0.0, 0.0, 0.0],   # curvature
         [0.0, 0.0, 0.0, 0.0, 0.0],   # curvature_change
         [0.0, 0.0, 0.0, 0.0, 0.0],   # lateral_offset

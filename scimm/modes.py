@@ -112,7 +112,7 @@ class IMMConfig:
         _diag(0.076, 0.028, 0.0015, 0.46, 0.34),     # Turn: curvature comes and goes; slowing into the turn
         _diag(0.0095, 0.0038, 0.00019, 0.23, 0.29),  # Deceleration: braking sets in and eases off
         _diag(0.11, 0.038, 0.0019, 0.44, 0.25),      # Avoidance: heading and curvature jump (a bypass starts)
-        _diag(0.057, 0.019, 0.00095, 0.44, 0.25),    # Recovery: between Cruise and Avoidance
+        _diag(0.057, 0.019, 0.00095, 0.44, 0.25),    # Recovery: path between Cruise and Avoidance, speed as Avoidance
     ]))
     # R: how far the fitted z is from a smooth trajectory, x 1.9. Path: half the share of
     # the fit residual in c0, c1, c2 first estimated: the closer the teacher follows z, the

@@ -14,7 +14,6 @@ Positions are world frame [m]; s is route arc length [m].
 from __future__ import annotations
 
 import math
-from typing import ClassVar
 
 import libsumo
 import numpy as np
@@ -23,6 +22,7 @@ import sumolib
 from controller.vehicle import DT
 from harness.sim.plan import GlobalPlan, route_lane
 from harness.sim.world import sumo_angle
+from scenarios.hazards import HAZARDS
 from scenarios.routefile import Hazard
 
 # moveToXY for walkers: bit 1 (place exactly, off-lane too) + bit 2 (ignore permissions).
@@ -90,8 +90,6 @@ class HazardActor:
     site (``distance`` m further); ``t0`` the simulation time [s] it started at.
     """
 
-    has_timeout: ClassVar[bool] = False  # a Leaderboard scenario timeout (SCENARIO_TIMEOUT) applies
-
     def __init__(self, hazard: Hazard, plan: GlobalPlan, net: sumolib.net.Net, rng: np.random.Generator,
                  n: int):
         """``hazard`` is the route file's scenario, ``n`` its index in the route (actor ids
@@ -112,7 +110,7 @@ class HazardActor:
     def timeout_active(self, ego_s: float, time: float) -> bool:
         """Whether this hazard's 240 s scenario timeout is running (Leaderboard: the
         blocked check is off meanwhile): started, not passed, not yet timed out."""
-        return (self.started and self.has_timeout
+        return (self.started and HAZARDS[self.hazard.type].timeout
                 and ego_s < self.site_s + SCENARIO_END and time - self.t0 <= SCENARIO_TIMEOUT)
 
     def quiet_span(self) -> tuple[float, float] | None:

@@ -84,7 +84,7 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
-from harness.common.atomic import write_atomic
+from files.atomic import write_atomic
 from harness.common.errors import BadInput
 from model.checkpoint import HISTORY_NAME, WEIGHTS_NAME, git_commit, save_checkpoint
 from model.data import TEACHERS, StudentData

@@ -37,7 +37,7 @@ from pathlib import Path
 
 import numpy as np
 
-from harness.common.atomic import write_atomic
+from files.atomic import write_atomic
 from scimm import pathspeed, planref
 from scimm.cues import cue_vector
 from scimm.ego import carry_inputs, pose_change

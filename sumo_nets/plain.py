@@ -20,6 +20,8 @@ from xml.sax.saxutils import quoteattr
 
 import numpy as np
 
+from files.atomic import write_atomic
+
 KMH = 1.0 / 3.6  # km/h -> m/s
 
 Point = tuple[float, float]
@@ -203,14 +205,5 @@ def build_net(plain: PlainNet, out: Path, note: str = "") -> Path:
         if n != 1:
             raise RuntimeError("netconvert output has no header comment to replace")
     out.parent.mkdir(parents=True, exist_ok=True)
-    tmp_out = out.with_suffix(out.suffix + ".tmp")
-    try:
-        tmp_out.write_bytes(data)
-        tmp_out.replace(out)
-    except BaseException:  # a full disk, a stop: no temporary file left
-        try:
-            tmp_out.unlink()
-        except OSError:
-            pass
-        raise
+    write_atomic(out, data)
     return out

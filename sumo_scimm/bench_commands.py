@@ -8,7 +8,7 @@ import json
 import math
 from pathlib import Path
 
-from harness.common.atomic import write_atomic
+from files.atomic import write_atomic
 from harness.common.errors import BadInput
 from harness.loop.agent import DEFAULT_AGENT, check_agent
 from model.benchmarks import EVAL_TARGET_S, OVERHEAD_TARGET, REPRODUCE_TARGET_S, RSS_TARGET_MB

@@ -9,7 +9,7 @@ import sys
 import zipfile
 from pathlib import Path
 
-from harness.common.atomic import write_atomic
+from files.atomic import write_atomic
 from harness.common.errors import BadInput
 from harness.loop.episode import AGENT_TIMEOUT
 from sumo_scimm.options import add_agent_options, add_backend_options, backend_of, seed_arg

@@ -28,7 +28,7 @@ from pathlib import Path
 import numpy as np
 
 from controller.vehicle import DT
-from harness.common.atomic import savez_atomic
+from files.atomic import savez_atomic
 from harness.sim.plan import _DIRECTION_TO_OPTION, LANEFOLLOW, to_ego
 
 FRAME_EVERY = 5  # ticks per recorded frame (20 Hz -> 4 Hz)

@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from harness.common.atomic import savez_atomic
+from files.atomic import savez_atomic
 from harness.loop.episode import AGENT_TIMEOUT
 from harness.scoring.bench2drive import record_keys
 from harness.scoring.infractions import KEYS

@@ -33,7 +33,7 @@ import socket
 import tempfile
 from pathlib import Path
 
-from harness.common.atomic import write_atomic
+from files.atomic import write_atomic
 from harness.runs.jobs import Job, b2d_dir, crash_record, run_job_safely, worker_stats
 
 OUTPUT_KINDS = ("logs", "episodes", "b2d")  # folders of a task's files: Job.log_dir, Job.collect_dir, b2d_dir

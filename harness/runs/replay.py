@@ -40,7 +40,7 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from harness.common.atomic import savez_atomic, write_atomic
+from files.atomic import savez_atomic, write_atomic
 from harness.common.errors import BadInput
 from harness.loop.agent import check_agent, load_agent, split_output, validate_sensors
 from harness.loop.episode import sensor_inputs

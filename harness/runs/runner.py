@@ -50,7 +50,7 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from harness.common.atomic import signals_held, write_atomic
+from files.atomic import signals_held, write_atomic
 from harness.runs.jobs import Job, crash_record, release_freed_memory, run_job_safely, worker_stats
 from harness.runs.provenance import OLD_RUN_FILE, RUN_FILE, check_same_run, run_identity
 

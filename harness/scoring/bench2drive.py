@@ -36,7 +36,7 @@ from pathlib import Path
 import numpy as np
 
 from controller.vehicle import DT
-from harness.common.atomic import write_atomic
+from files.atomic import write_atomic
 from harness.scoring.statuses import COMPLETED, PERFECT
 
 EFFICIENCY_CAP = 1000.0  # checkpoint values above this are left out [%]

@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from harness.common.atomic import write_atomic
+from files.atomic import write_atomic
 from harness.scoring.bench2drive import success
 from harness.scoring.records import RECORD_FIELDS, STABILITY
 from harness.scoring.scores import results, results_text

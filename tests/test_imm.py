@@ -281,7 +281,7 @@ def test_shared_and_per_frame_inputs_give_identical_results():
 
 def test_bench_reports_its_figures_from_a_fresh_process():
     # not a timing test: the figures exist and the IMM agrees with filterpy on the bench system
-    from scimm.bench import run_imm_bench
+    from sumo_scimm.bench.imm import run_imm_bench
     r = run_imm_bench(batch=3, frames=12, filterpy_sequences=2)
     assert (r["imm_batch"], r["imm_frames"]) == (3, 12)
     assert r["imm_frames_per_s"] > 0

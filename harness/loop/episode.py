@@ -274,7 +274,7 @@ class _RouteEnd:
 class Scene:
     """Everything SUMO simulates in an episode: the ego mirrored into it, the route's
     hazards, the background traffic and the route bubble. ``advance`` is the simulation's
-    half of a tick; ``harness.runs.bench`` replays a logged ego through it to time SUMO and
+    half of a tick; ``sumo_scimm.bench.closed_loop`` replays a logged ego through it to time SUMO and
     its traffic alone."""
 
     def __init__(self, route: Route, net, plan: GlobalPlan, world: World,

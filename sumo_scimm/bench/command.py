@@ -1,6 +1,5 @@
 """``sumo-scimm bench``: every performance figure of SPEC §11 beside its reference from the
-same run (harness.runs.bench, scimm.bench, model.bench, model.benchmarks), printed as a
-table and optionally written as JSON. Figures are for reading, never asserted in a test."""
+same run (the modules beside this one), printed as a table and optionally written as JSON. Figures are for reading, never asserted in a test."""
 from __future__ import annotations
 
 import argparse
@@ -11,12 +10,12 @@ from pathlib import Path
 from files.atomic import write_atomic
 from harness.common.errors import BadInput
 from harness.loop.agent import DEFAULT_AGENT, check_agent
-from model.benchmarks import EVAL_TARGET_S, OVERHEAD_TARGET, REPRODUCE_TARGET_S, RSS_TARGET_MB
+from sumo_scimm.bench.figures import EVAL_TARGET_S, OVERHEAD_TARGET, REPRODUCE_TARGET_S, RSS_TARGET_MB
 
 
 def _print_loop(loop: dict) -> None:
     """The closed-loop figures: the harness step against bare libsumo (+ the network)."""
-    from harness.runs.bench import format_bench
+    from sumo_scimm.bench.closed_loop import format_bench
     infer = loop.setdefault("bare_inference_ms", 0.0)  # 0 for a rule-based agent
     share = loop.setdefault("network_share", 0.0)
     loop.setdefault("harness_over_bare_plus_inference", loop["harness_over_bare"])
@@ -52,10 +51,10 @@ def _print_memory(label: str, e: dict) -> None:
 
 
 def _bench(args: argparse.Namespace) -> int:
-    from harness.runs.bench import BenchError, collect_rate, run_bench
-    from model.bench import format_student_bench, run_student_bench
-    from model.benchmarks import bare_inference, eval_figures, machine, reproduce_figure
-    from scimm.bench import format_imm_bench, run_imm_bench
+    from sumo_scimm.bench.closed_loop import BenchError, collect_rate, run_bench
+    from sumo_scimm.bench.student import format_student_bench, run_student_bench
+    from sumo_scimm.bench.figures import bare_inference, eval_figures, machine, reproduce_figure
+    from sumo_scimm.bench.imm import format_imm_bench, run_imm_bench
     if args.routes_count < 1 or args.workers < 1 or args.rounds < 1:
         raise BadInput("--routes-count, --workers and --rounds must be >= 1")
     args.agent, args.agent_config = check_agent(args.agent, args.agent_config)

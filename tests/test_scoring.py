@@ -217,4 +217,4 @@ def test_summary_has_bench2drives_success_rate():
     records = [rec("Perfect"), rec("Completed", min_speed_infractions=[speed(40.0)]),
                rec("Completed", outside_route_lanes=[outside(0.5, 0.01)]), rec("Failed - Agent got blocked")]
     rows = {r["metric"]: r for r in summary_rows(records, {"_checkpoint": {"global_record": {}}})}
-    assert rows["success_rate"]["value"] == 50.0
+    assert rows["success_rate (%)"]["value"] == 50.0

@@ -1,4 +1,4 @@
-"""Hazard types of the route sets (SPEC §2.3) and where a route offers room for them.
+"""Hazard types of the route sets (docs/design.md §2.3) and where a route offers room for them.
 
 Every hazard in a route file is a Leaderboard-2.0-style ``<scenario name type>`` with a
 ``trigger_point`` and parameters as child elements ``<param value="..."/>``. The

@@ -1,4 +1,4 @@
-"""Route-set builders (SPEC §2.2): seeded random walks on a town, hazards placed where
+"""Route-set builders (docs/design.md §2.2): seeded random walks on a town, hazards placed where
 the route has room for them, hazard types balanced across the set.
 
 A set is built town by town. For each town the builder draws candidate routes (a

@@ -34,12 +34,12 @@ class RoadClass:
     name: str
     speed: float  # speed limit [m/s]
     lanes: int  # driving lanes per direction
-    lane_width: float  # [m]; SPEC §2.1 wants 3-3.5 m
+    lane_width: float  # [m]; docs/design.md §2.1 wants 3-3.5 m
     priority: int  # SUMO edge priority: higher roads get right of way at priority junctions
     sidewalk: float  # sidewalk width [m] on the right of each direction
 
 
-# Road classes by SPEC §2.1: speed limits 30 / 50 / 60 km/h, lanes 3-3.5 m wide.
+# Road classes by docs/design.md §2.1: speed limits 30 / 50 / 60 km/h, lanes 3-3.5 m wide.
 RESIDENTIAL = RoadClass("residential", 30 * KMH, 1, 3.0, 1, 2.0)
 TOWN = RoadClass("town", 50 * KMH, 1, 3.25, 2, 2.0)
 DOWNTOWN = RoadClass("downtown", 50 * KMH, 2, 3.5, 3, 3.0)

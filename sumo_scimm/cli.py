@@ -1,4 +1,4 @@
-"""The ``sumo-scimm`` command line: one subcommand per stage of the data flow (SPEC §1),
+"""The ``sumo-scimm`` command line: one subcommand per stage of the data flow (docs/design.md §1),
 every one registered here.
 
 ``main(argv) -> int`` is importable and testable. Results go to stdout; diagnostics (what

@@ -1,5 +1,5 @@
 """``sumo-scimm eval``, ``render``, ``score``, ``report``, ``collect`` and ``data``: the
-closed loop's subcommands (SPEC §3, §5, §9). Each parses its options, calls the stage
+closed loop's subcommands (docs/design.md §3, §5, §9). Each parses its options, calls the stage
 function (harness.runs.evaluate, harness.loop.render, harness.scoring) and prints the result."""
 from __future__ import annotations
 

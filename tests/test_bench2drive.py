@@ -1,6 +1,6 @@
 """Bench2Drive's Success Rate, Driving Efficiency and Driving Smoothness, and its
 metric_info.json, on short synthetic drives with every expected value worked out by hand
-from Bench2Drive's definitions (notes leaderboard2.md §7.2-§7.4)."""
+from Bench2Drive's definitions (docs/design.md §9.2)."""
 from __future__ import annotations
 
 import json

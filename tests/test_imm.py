@@ -1,5 +1,5 @@
 """The batched IMM (scimm.imm) against exact reductions and filterpy's IMMEstimator
-(notes imm.md §2.5 items 1-7, 9, 10)."""
+(the properties listed in docs/design.md §6.2)."""
 from __future__ import annotations
 
 import numpy as np

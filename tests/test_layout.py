@@ -1,4 +1,4 @@
-"""The layout of the code (SPEC §1): imports go forward along the data flow, never back, and
+"""The layout of the code (docs/design.md §1): imports go forward along the data flow, never back, and
 never by a name string except the documented ``--agent module:Class`` loader.
 
 Stages, in the order of the data flow (a module may import its own stage and earlier ones):

@@ -1,4 +1,4 @@
-"""Faults in real runs, interrupted runs, determinism and bad input (SPEC §12).
+"""Faults in real runs, interrupted runs, determinism and bad input (docs/design.md §12).
 
 Already covered in test_closed_loop.py and not repeated here: an agent that raises or
 returns NaN, a worker killed with SIGKILL, SIGKILL of the whole run then --resume,

@@ -1,5 +1,5 @@
 """Leaderboard scoring from infraction lists, against values worked out by hand from the
-rules (notes leaderboard2.md §5-§6), and `sumo-scimm score` on a CARLA-style file."""
+rules (docs/design.md §9.1), and `sumo-scimm score` on a CARLA-style file."""
 from __future__ import annotations
 
 import json

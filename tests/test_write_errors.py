@@ -1,4 +1,4 @@
-"""Outputs that cannot be written (SPEC §12): checked before the first route; a write that
+"""Outputs that cannot be written (docs/design.md §12): checked before the first route; a write that
 fails stops the run with one line, leaves no temporary file, and --resume finishes it.
 
 Real file-system errors: ENOSPC comes from the kernel, through a link to /dev/full at a

@@ -1,4 +1,4 @@
-"""One episode = one route in libsumo at 0.05 s steps (SPEC §3).
+"""One episode = one route in libsumo at 0.05 s steps (docs/design.md §3).
 
 Each tick, as in the leaderboard: the agent decides on the state after the last step
 (sensors built from one snapshot), the harness integrates the ego with the vehicle

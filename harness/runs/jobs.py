@@ -1,4 +1,4 @@
-"""One route run as a job: its seed, driving it in this process, and its record (SPEC §10).
+"""One route run as a job: its seed, driving it in this process, and its record (docs/design.md §10).
 
 A ``Job`` is what a worker (a local process or a Ray task) gets; ``run_job`` drives the
 route, saves its per-tick log (``logs/<route>_rep<k>.npz``), detects the infractions and

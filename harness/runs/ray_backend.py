@@ -1,4 +1,4 @@
-"""The Ray backend of the runner (SPEC §10): each route run is a Ray task.
+"""The Ray backend of the runner (docs/design.md §10): each route run is a Ray task.
 
 ``sumo-scimm eval --backend ray [--address ADDR]``. Without ``--address`` a local Ray is
 started with ``--workers`` CPUs (default: every core) and shut down at the end; with it,

@@ -1,4 +1,4 @@
-"""The evaluation runner: routes fan out over worker processes, one libsumo each (SPEC §10).
+"""The evaluation runner: routes fan out over worker processes, one libsumo each (docs/design.md §10).
 
 Outputs in the run folder:
 

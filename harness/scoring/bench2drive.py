@@ -1,4 +1,4 @@
-"""Bench2Drive's figures (notes leaderboard2.md §7): Success Rate, Driving Efficiency and
+"""Bench2Drive's figures (docs/design.md §9.2): Success Rate, Driving Efficiency and
 Driving Smoothness, and the per-route ``metric_info.json`` its
 ``tools/efficiency_smoothness_benchmark.py`` reads.
 

@@ -1,4 +1,4 @@
-"""Leaderboard 2.0 infraction detection from an episode log (notes leaderboard2.md §3-§4).
+"""Leaderboard 2.0 infraction detection from an episode log (docs/design.md §9.1).
 
 Detection is a function of the per-tick log (ego pose and speed, contacts, the route's
 light states, background speed), the route's plan and the town's lanes, run once after

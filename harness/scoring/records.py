@@ -1,4 +1,4 @@
-"""The record schema: the columns of ``records.csv``, one row per route run (SPEC §9).
+"""The record schema: the columns of ``records.csv``, one row per route run (docs/design.md §9).
 
 A record is written by ``harness.runs.runner`` and read by ``harness.scoring.outputs`` and
 ``harness.scoring.report``; this module is the one place its columns are named.

@@ -1,5 +1,5 @@
 """Leaderboard scoring as pure functions: infraction lists -> route record -> global
-record -> results JSON (notes leaderboard2.md §5-§6). Works the same on our runs and on
+record -> results JSON (docs/design.md §9.1). Works the same on our runs and on
 a results file written by CARLA's leaderboard, because it reads only what such a file
 holds: the message lists, the route scores and the meta.
 

@@ -29,7 +29,7 @@ from scenarios.routefile import Hazard
 # With keepRoute 0 or 2, SUMO 1.28 segfaulted in simulationStep when a walker was moved
 # across a crosswalk (town12_short route 29); 6 does not.
 PERSON_KEEP_ROUTE = 6
-# Scenario timeouts (notes leaderboard2.md §3.7): hazards that can block the ego get 240 s
+# Scenario timeouts (docs/design.md §9.1): hazards that can block the ego get 240 s
 # from their trigger to their own end (the ego this far past the site)
 SCENARIO_TIMEOUT = 240.0  # [s]
 SCENARIO_END = 10.0  # [m]

@@ -1,4 +1,4 @@
-"""Hazards in the running simulation (SPEC §2.3): each route hazard becomes an actor of
+"""Hazards in the running simulation (docs/design.md §2.3): each route hazard becomes an actor of
 its type's class (``make_hazard``; the interface is harness.sim.hazard_actor.HazardActor)
 that starts when the ego's route progress reaches its trigger point.
 

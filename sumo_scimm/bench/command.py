@@ -1,4 +1,4 @@
-"""``sumo-scimm bench``: every performance figure of SPEC §11 beside its reference from the
+"""``sumo-scimm bench``: every performance figure of docs/design.md §11 beside its reference from the
 same run (the modules beside this one), printed as a table and optionally written as JSON. Figures are for reading, never asserted in a test."""
 from __future__ import annotations
 
@@ -110,7 +110,7 @@ def _bench(args: argparse.Namespace) -> int:
 
 def register(sub: argparse._SubParsersAction) -> None:
     """Add ``sumo-scimm bench``."""
-    bn = sub.add_parser("bench", help="performance figures beside their references (SPEC §11)")
+    bn = sub.add_parser("bench", help="performance figures beside their references (docs/design.md §11)")
     bn.add_argument("--routes", default="town12_smoke", help="route set of the per-tick figures (default town12_smoke)")
     bn.add_argument("--routes-count", type=int, default=4, help="routes of the set to run (default 4)")
     bn.add_argument("--agent", default=DEFAULT_AGENT,
@@ -123,13 +123,13 @@ def register(sub: argparse._SubParsersAction) -> None:
     bn.add_argument("--workers", type=int, default=2, help="workers of the --eval run (default 2)")
     bn.add_argument("--soak", type=int, default=0, metavar="N",
                     help="also run at least N route runs of --routes (whole passes over the set) on --workers "
-                         "and report worker memory over them (SPEC §11: --soak 500 --routes town12_short, "
+                         "and report worker memory over them (docs/design.md §11: --soak 500 --routes town12_short, "
                          "about 4 min per 100 routes with the student)")
     bn.add_argument("--reproduce", metavar="DIR",
                     help="also print the wall time a finished 'sumo-scimm reproduce --out DIR' recorded")
     bn.add_argument("--replay", metavar="DIR",
                     help="also time 'sumo-scimm replay' of the eval run DIR (its every route) with three of the "
-                         "shipped students (baseline, fixed, scimm) on --workers (SPEC §11: an expert run of "
+                         "shipped students (baseline, fixed, scimm) on --workers (docs/design.md §11: an expert run of "
                          "town12_short)")
     bn.add_argument("--json", help="also write the figures as JSON to this file")
     bn.set_defaults(func=_bench)

@@ -1,5 +1,5 @@
 """The figures of ``sumo-scimm bench`` that span stages: every performance figure of
-SPEC §11, each beside its reference measured in the same run (the command in
+docs/design.md §11, each beside its reference measured in the same run (the command in
 sumo_scimm.bench.command prints them as a table and optionally writes them as JSON).
 
 - closed loop (``closed_loop``): harness step with the chosen agent against bare libsumo

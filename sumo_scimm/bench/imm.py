@@ -1,4 +1,4 @@
-"""IMM throughput for ``sumo-scimm bench`` (SPEC §11): frames per second of the batched
+"""IMM throughput for ``sumo-scimm bench`` (docs/design.md §11): frames per second of the batched
 5-mode / 5-state IMM on one core, beside filterpy's IMMEstimator on the same sequences (if
 filterpy is installed; it is a test-only dependency), and their agreement.
 

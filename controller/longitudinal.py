@@ -1,5 +1,5 @@
 """PDM-Lite's longitudinal controller: a fitted linear regression from (speed, speed error)
-to throttle, close to bang-bang, with a binary brake (notes controllers.md §4b).
+to throttle, close to bang-bang, with a binary brake (docs/design.md §8.3).
 
 Works in km/h inside, as fitted:
 1. target < 1e-5 m/s or a hazard brake -> throttle 0, brake;

@@ -1,7 +1,7 @@
 """PID controllers of the field's waypoint agents, stepped once per 0.05 s tick.
 
 All run at 20 Hz with per-sample differences and window means (no dt scaling), so the
-gains are only valid at that rate (notes controllers.md §1).
+gains are only valid at that rate (docs/design.md §8.1).
 
 - :class:`PID` (TransFuser / SimLingo speed PID): a FIFO of the last ``n`` errors,
   pre-filled with zeros; integral = mean of the FIFO, derivative = newest - previous.
@@ -17,11 +17,11 @@ from collections import deque
 
 import numpy as np
 
-# PDM-Lite / SimLingo lateral PID (notes controllers.md §4a), Bayesian-optimised at 20 Hz
+# PDM-Lite / SimLingo lateral PID (docs/design.md §8.2), Bayesian-optimised at 20 Hz
 LAT_KP, LAT_KI, LAT_KD, LAT_N = 3.118357247806046, 0.6406067986034124, 1.3782508892109167, 6
 # lookahead index on a 0.1 m path: clip(a * v[km/h] + b, 24, 105) -> 2.4 m ... 10.5 m
 LOOK_A, LOOK_B, LOOK_MIN, LOOK_MAX = 0.9755321901954155, 1.9152884533402488, 24, 105
-# SimLingo speed PID (notes controllers.md §5b)
+# SimLingo speed PID (docs/design.md §8.2)
 SPEED_KP, SPEED_KI, SPEED_KD, SPEED_N = 1.75, 1.0, 2.0, 20
 
 

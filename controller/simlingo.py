@@ -1,6 +1,6 @@
-"""SimLingo's waypoint controller: predicted path + speed waypoints -> Control (SPEC §8).
+"""SimLingo's waypoint controller: predicted path + speed waypoints -> Control (docs/design.md §8).
 
-Stepped once per 0.05 s tick (notes controllers.md §5b; our own implementation):
+Stepped once per 0.05 s tick (docs/design.md §8.2; our own implementation):
 
 - Lateral: the path (ego frame, x forward, y left) with the ego origin prepended is
   resampled every PATH_STEP = 0.1 m of arc length (linear interpolation; SimLingo uses a

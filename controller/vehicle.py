@@ -1,10 +1,10 @@
 """The ego vehicle model: a kinematic bicycle with throttle/brake speed dynamics.
 
-The harness integrates the ego itself (SUMO only mirrors the result, SPEC §3), so the
+The harness integrates the ego itself (SUMO only mirrors the result, docs/design.md §3), so the
 agent's own steering errors show: nothing pulls the ego back to a lane centre.
 
 Model (constants fitted for CARLA's default car in the PDM-Lite / World-on-Rails
-kinematic bicycle model, notes controllers.md §6.6; our own implementation):
+kinematic bicycle model, docs/design.md §8.4; our own implementation):
 
     delta = STEER_TO_WHEEL * steer                    front wheel angle [rad]
     beta  = atan(LR / (LF + LR) * tan(delta))         slip angle at the centre [rad]
@@ -20,7 +20,7 @@ Leaderboard convention every agent in the field uses); throttle in [0, 1]; brake
 [0, 1], braking when brake > 0.5 (the fitted model has a binary brake). State in the
 SUMO world frame: x east, y north [m], yaw [rad] counter-clockwise from +x, v [m/s].
 
-Actuation imperfection (SPEC §3): the applied steer follows the command with a
+Actuation imperfection (docs/design.md §3): the applied steer follows the command with a
 first-order lag (time constant STEER_LAG) plus seeded Gaussian noise (STEER_NOISE),
 and throttle gets seeded noise (THROTTLE_NOISE), so even a perfect agent's trajectory
 is slightly imperfect.
@@ -41,7 +41,7 @@ LF = -0.090769015  # fitted "front wheel base" [m] (not geometric)
 LR = 1.4178275  # fitted "rear wheel base" [m]
 THROTTLE_DEADBAND = 0.3  # below this throttle the speed is kept [-]
 
-# speed polynomials, km/h per 0.05 s step (notes controllers.md §6.6)
+# speed polynomials, km/h per 0.05 s step (docs/design.md §8.4)
 _BRAKE = np.array([9.31711370e-03, 8.20967431e-02, -2.83832427e-03, 5.06587474e-05,
                    -4.90357228e-07, 2.44419284e-09, -4.91381935e-12])
 _THROTTLE = np.array([9.63873001e-01, 4.37535692e-04, -3.80192912e-01, 1.74950069e+00,

@@ -1,4 +1,4 @@
-"""The closed loop (SPEC §3-§5, §9-§10): one subpackage per concern, imported in this order.
+"""The closed loop (docs/design.md §3-§5, §9-§10): one subpackage per concern, imported in this order.
 
     common/    atomic file writes, the bad-input error, the run-folder lock, the user's
                stops (Ctrl-C, SIGTERM) told from an agent's exceptions; shared by every stage

@@ -1,1 +1,4 @@
-"""model stage (SPEC §1); built by later issues."""
+"""The student stage: the BEV student network (``network``), its loss (``loss``), its data
+and BEV cache (``data``, ``cache``), training and checkpoints (``train``, ``checkpoint``,
+``curves``), the student as a closed-loop agent (``agent``, ``runtime``) and the whole
+experiment, collect to tables (``reproduce``, ``arm_tables``)."""

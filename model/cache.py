@@ -16,8 +16,8 @@ training step spends on a sample, so every frame is rendered once into a cache:
   (x forward, y left) [m], the augmentation (shift, rot) of every view, the ego speed and
   the expert's stop-sign flag (model.train's data balance).
 
-Cache file: ``CACHE_DIR/<dataset hash[:16]>_v<views>_c<CACHE_VERSION>.npz`` (written to a temporary file,
-then renamed). The dataset hash covers every episode file's name and bytes.
+Cache file: ``CACHE_DIR/<dataset hash[:16]>_v<views>_c<CACHE_VERSION>.npz`` (written whole or not at
+all, files.atomic). The dataset hash covers every episode file's name and bytes.
 """
 from __future__ import annotations
 
@@ -29,6 +29,7 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
+from files.atomic import write_atomic
 from scimm.teacher import episode_files
 
 BEV_SHAPE = (9, 64, 64)  # harness.sensors.bev: (channels, rows, columns)
@@ -121,17 +122,14 @@ def build_cache(folder: Path, cache_dir: Path, views: int, workers: int = 2, dig
     arrays["frame"] = np.concatenate([np.arange(len(p["speed"]), dtype=np.int32) for p in parts])
     arrays["stems"] = np.array([f.stem for f in files])
     out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = out.with_name(out.name + f".tmp{mp.current_process().pid}.npz")
-    try:
-        np.savez(tmp, **arrays)
-        tmp.replace(out)
-    except BaseException:  # a full disk, a stop: no temporary file left
-        try:
-            tmp.unlink()
-        except OSError:
-            pass
-        raise
+    write_atomic(out, lambda tmp: _savez(tmp, arrays), shared=True)  # other workers may build it too
     return out
+
+
+def _savez(path: Path, arrays: dict[str, np.ndarray]) -> None:
+    """``np.savez`` to exactly ``path`` (given a file name, numpy would append ``.npz``)."""
+    with open(path, "wb") as f:
+        np.savez(f, **arrays)
 
 
 def _render_job(job: tuple[str, int]) -> dict[str, np.ndarray]:

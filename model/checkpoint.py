@@ -19,7 +19,7 @@ from pathlib import Path
 
 import torch
 
-from harness.common.atomic import write_atomic
+from files.atomic import write_atomic
 from harness.common.errors import BadInput
 from model.network import NetConfig, Student
 

@@ -1,4 +1,4 @@
-"""The training loss of the SC-IMM paper, eq. 10-13 (SPEC §7).
+"""The training loss of the SC-IMM paper, eq. 10-13 (docs/design.md §7).
 
     L = l_origin * L_origin + l_scimm * L_scimm + l_mode * L_mode            (eq. 10)
     L_origin = MSE(P^, P) + MSE(W^, W)              expert path and speed waypoints

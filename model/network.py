@@ -1,6 +1,6 @@
-"""The student: a small network in the shape of SimLingo-BASE (CarLLaVA), sized for a CPU (SPEC §7).
+"""The student: a small network in the shape of SimLingo-BASE (CarLLaVA), sized for a CPU (docs/design.md §7).
 
-References: Renz et al., "CarLLaVA" / SimLingo-Base (notes controllers.md §5a, §5d); Kim & Kong,
+References: Renz et al., "CarLLaVA" / SimLingo-Base (docs/design.md §7); Kim & Kong,
 SC-IMM paper §4 (auxiliary mode predictor).
 
 Data flow (B = batch)::

@@ -26,7 +26,7 @@ from pathlib import Path
 
 import pandas as pd
 
-from harness.common.atomic import write_atomic
+from files.atomic import write_atomic
 from harness.common.errors import BadInput
 from harness.runs.evaluate import Backend
 

@@ -1,4 +1,4 @@
-"""Training the student, top to bottom (SPEC §7).
+"""Training the student, top to bottom (docs/design.md §7).
 
     sumo-scimm train --data data/train --val data/val --teacher none  --out runs/student_baseline
     sumo-scimm train --data data/train --val data/val --teacher scimm --seed 1 --out runs/student_scimm
@@ -60,7 +60,7 @@ step budget ran out; ``no_val``, no validation set, so the last epoch is saved;
 criterion is this: it is the one loss every arm shares (L_origin on ``val``), it needs no
 extra run per arm, and the evaluation routes never take part in it.
 
-Schedule length (EPOCHS x EPOCH_STEPS = 3,200 steps, 6-7 min on 2 cores): set by SPEC §11's
+Schedule length (EPOCHS x EPOCH_STEPS = 3,200 steps, 6-7 min on 2 cores): set by docs/design.md §11's
 target for ``reproduce``, five arms of a seed trained and evaluated in <= 75 min on 2 cores
 (docs/results.md has the stage times). Its cost on ``val`` (seed 0, students with the speed
 input): best L_origin 1.896 (control) and 1.886 (SC-IMM) after 3,200 steps, against 1.732
@@ -84,7 +84,7 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
-from harness.common.atomic import write_atomic
+from files.atomic import write_atomic
 from harness.common.errors import BadInput
 from model.checkpoint import HISTORY_NAME, WEIGHTS_NAME, git_commit, save_checkpoint
 from model.data import TEACHERS, StudentData

@@ -1,4 +1,4 @@
-"""Route sets: Leaderboard-2.0-style route XML with SUMO edge lists and hazards (SPEC §2.2).
+"""Route sets: Leaderboard-2.0-style route XML with SUMO edge lists and hazards (docs/design.md §2.2).
 
 A set is named by its file stem: ``resolve_set("town12_short")`` is
 ``scenarios/town12_short.xml``; a path to any route file works too.

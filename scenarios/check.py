@@ -1,4 +1,4 @@
-"""Route validation (``sumo-scimm routes check FILE``, SPEC §2.2).
+"""Route validation (``sumo-scimm routes check FILE``, docs/design.md §2.2).
 
 A route passes when its town is known, its edges are consecutive and connected for
 cars, its start and end positions lie on their lanes, its length along the lanes is

@@ -5,7 +5,7 @@ A route is a list of consecutive SUMO edges plus a start position on the first e
 the lane. :func:`trace` picks the lanes the route drives (no lane change unless the next
 turn needs one), follows the junction-internal lanes between edges, blends a needed
 lane change over the middle of an edge, and resamples the result every metre. Its
-length is the route length "measured along the SUMO lanes" (SPEC §2.2).
+length is the route length "measured along the SUMO lanes" (docs/design.md §2.2).
 
 Frames and units: SUMO world frame (x east, y north), metres; ``s`` is the arc length
 along the route from its start [m]; yaw is the heading [rad] from +x, counter-clockwise.

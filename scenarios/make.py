@@ -1,4 +1,4 @@
-"""Route-set builders (SPEC §2.2): seeded random walks on a town, hazards placed where
+"""Route-set builders (docs/design.md §2.2): seeded random walks on a town, hazards placed where
 the route has room for them, hazard types balanced across the set.
 
 A set is built town by town. For each town the builder draws candidate routes (a
@@ -72,12 +72,6 @@ SETS: dict[str, SetSpec] = {
                              exclude=("town12_short", "train", "val")),
 }
 
-# Ranges the builder draws hazard parameters from (inside the valid ranges of HAZARDS).
-DISTANCE = {"PedestrianCrossing": (18, 30), "DynamicObjectCrossing": (12, 22),
-            "ParkedObstacle": (35, 55), "HardBreakRoute": (35, 55), "ParkingCutIn": (15, 28),
-            "SignalizedJunction": (35, 55), "StopSignJunction": (35, 55), "UnprotectedLeftTurn": (35, 55)}
-
-
 def set_path(name: str) -> Path:
     """Where route set ``name`` lives (``scenarios/<name>.xml``)."""
     return SETS_DIR / f"{name}.xml"
@@ -139,7 +133,7 @@ def _waypoints(path: RoutePath) -> tuple[tuple[float, float, float], ...]:
 
 def _draw(kind: str, site: Site, path: RoutePath, rng: np.random.Generator) -> tuple[float, dict] | None:
     """Site position [m] and parameters of one hazard of type ``kind`` at ``site``, or None."""
-    lo_d, hi_d = DISTANCE[kind]
+    lo_d, hi_d = HAZARDS[kind].distance
     d = float(rng.uniform(lo_d, hi_d))
     lo = max(site.s_lo, d + TRIGGER_MIN)
     if lo > site.s_hi:
@@ -147,22 +141,7 @@ def _draw(kind: str, site: Site, path: RoutePath, rng: np.random.Generator) -> t
     s = float(rng.uniform(lo, site.s_hi))
     if site.s_hi > site.s_lo and math.degrees(path.heading_change(s - 20, s + 20)) > STRAIGHT_DEG:
         return None
-    p = dict(site.fixed)
-    if kind == "PedestrianCrossing":
-        p |= {"walkers": str(int(rng.integers(1, 4))), "direction": str(rng.choice(["right", "left"])),
-              "speed": f"{rng.uniform(0.9, 1.5):.2f}"}
-    elif kind == "DynamicObjectCrossing":
-        side = str(rng.choice(["right", "right", "left"]))
-        p |= {"direction": side, "blocker": str(rng.choice(["parked_car", "none"])) if side == "right" else "none",
-              "speed": f"{rng.uniform(1.2, 2.5):.2f}"}
-    elif kind == "ParkedObstacle":
-        p = {"variant": str(rng.choice(["parked_car", "accident", "construction"])), **p}
-    elif kind == "HardBreakRoute":
-        p |= {"gap": f"{rng.uniform(15, 30):.1f}", "decel": f"{rng.uniform(5, 8):.1f}"}
-    elif kind == "ParkingCutIn":
-        p |= {"direction": "right" if p["source"] == "parking" else "left"}
-    else:  # junction hazards
-        p |= {"flow": str(int(rng.integers(8, 21)))}
+    p = HAZARDS[kind].draw(rng, dict(site.fixed))
     params = {"distance": f"{d:.1f}", **p}
     ordered = {q.name: params[q.name] for q in HAZARDS[kind].params}
     return s, ordered

@@ -29,7 +29,6 @@ range, with over-long values cut (``clip_numbers``).
 from __future__ import annotations
 
 import math
-import os
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -37,6 +36,8 @@ from xml.etree.ElementTree import Element, ParseError, SubElement, indent, tostr
 
 import defusedxml.ElementTree as SafeET
 from defusedxml import DefusedXmlException
+
+from files.atomic import write_atomic
 
 
 COORD_LIMIT = 1e7  # |x|, |y|, |z| and positions along a lane [m]: 10,000 km, beyond any net
@@ -201,7 +202,7 @@ def _fmt(v: float) -> str:
 
 
 def write_routes(path: Path, meta: dict[str, str], routes: list[Route]) -> Path:
-    """Write routes in the layout above, atomically (temp file, then rename)."""
+    """Write routes in the layout above, whole or not at all (files.atomic)."""
     root = Element("routes", meta)
     for r in routes:
         el = SubElement(root, "route", {"id": r.id, "town": r.town})
@@ -219,14 +220,5 @@ def write_routes(path: Path, meta: dict[str, str], routes: list[Route]) -> Path:
                                 "arrival_pos": _fmt(r.arrival_pos), "length": _fmt(r.length)})
     indent(root, "  ")
     path = Path(path)
-    tmp = path.with_suffix(path.suffix + ".tmp")
-    try:
-        tmp.write_bytes(b'<?xml version="1.0" encoding="UTF-8"?>\n' + tostring(root, encoding="utf-8") + b"\n")
-        tmp.replace(path)
-    except BaseException:  # a full disk, a stop: no temporary file left
-        try:
-            os.unlink(tmp)
-        except OSError:
-            pass
-        raise
+    write_atomic(path, b'<?xml version="1.0" encoding="UTF-8"?>\n' + tostring(root, encoding="utf-8") + b"\n")
     return path

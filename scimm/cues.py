@@ -1,4 +1,4 @@
-"""Scene cue vector s_t of SPEC §6.3 / paper Table 1, from a dataset episode's arrays.
+"""Scene cue vector s_t of docs/design.md §6.3 / paper Table 1, from a dataset episode's arrays.
 
 One row per frame, one column per cue, in ``CUES`` order (raw values, dataset units; see
 docs/dataset.md for their definitions and frames). ``scimm.modes`` turns them into the

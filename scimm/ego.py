@@ -1,4 +1,4 @@
-"""Ego-motion compensation of the path-speed state (SPEC §6.2): the state of frame t-1,
+"""Ego-motion compensation of the path-speed state (docs/design.md §6.2): the state of frame t-1,
 written in frame t-1's ego frame, carried into frame t's ego frame with the recorded pose
 change, a known input of the IMM's predict step (scimm.imm, step 3b).
 

@@ -1,6 +1,6 @@
 """Interacting Multiple Model filter, batched over sequences with NumPy (paper eq. 4-7).
 
-Symbols (Bar-Shalom, Li & Kirubarajan 2001, ch. 11; notes imm.md §1):
+Symbols (Bar-Shalom, Li & Kirubarajan 2001, ch. 11; docs/design.md §6.2):
 
     B sequences, T frames, M modes, n states; the measurement is the state: H = I (n x n).
     x^j, P^j      mode-matched posterior mean (n,) and covariance (n, n) of mode j
@@ -25,7 +25,7 @@ One cycle per frame t, frame 0 included, starting from the given (x0, P0, mu0):
 
 A frame whose measurement has a NaN skips 5-7 (x^j = xbar^j, P^j = Pbar^j, mu = cbar).
 
-Step 3b is a known input shared by every mode (SPEC §6.2): the state of frame t-1 carried
+Step 3b is a known input shared by every mode (docs/design.md §6.2): the state of frame t-1 carried
 into frame t's coordinates by a per-frame matrix C_t and offset u_t (the teacher's ego
 motion, scimm.ego). Mode j's transition is then x_t = F_j C_t x_t-1 + F_j u_t + w, still
 linear: filterpy's KalmanFilter with F = F_j C_t, B = F_j and control u_t is the same

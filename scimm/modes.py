@@ -1,4 +1,4 @@
-"""The five driving modes and every number of the IMM and its scene conditioning (SPEC §6.2-6.3,
+"""The five driving modes and every number of the IMM and its scene conditioning (docs/design.md §6.2-6.3,
 paper §III.2-3, eq. 8-9), in one readable config.
 
 State and observation (scimm.pathspeed, paper eq. 3), frame period dt = 0.25 s:
@@ -25,7 +25,7 @@ Scene conditioning (paper eq. 8-9): the cues s_t (scimm.cues) are mapped to feat
 f(s_t) in [0, 1] (``features``); then
 
     b_t[j]     = sum_f f_t W_A[f, j]            the cues' logit bonus for entering mode j
-                                                (cf. input-driven transitions, notes imm.md §4)
+                                                (cf. input-driven transitions, docs/design.md §6.3)
     A_t[i, j]  = b_t[j] + stay_gain max(b_t[j], 0) [i = j]
                                                 the same for every previous mode i, plus a
                                                 bonus for staying in a mode the cues support

@@ -1,4 +1,4 @@
-"""Path-speed observation of a frame's labels and its inverse (paper eq. 2-3, SPEC §6.1).
+"""Path-speed observation of a frame's labels and its inverse (paper eq. 2-3, docs/design.md §6.1).
 
 The paper fits the future path with a quadratic ``y(s) = c0 + c1 s + c2 s^2`` and the speed
 profile with ``v(tau) = v_ref + a_ref tau``, giving the observation

@@ -17,7 +17,7 @@ and the reference is the expert's plan of the frame before:
               (the ego, which joins the plan within its first metre) do not count; z_0 = 0.
     x_t[:3]   the teacher's offset from plan_t-1, in the same coordinates.
 
-Predict (SPEC §6.2, a known input): the state is rebased onto plan_t-1 (x - z_t-1: plan_t-1
+Predict (docs/design.md §6.2, a known input): the state is rebased onto plan_t-1 (x - z_t-1: plan_t-1
 is plan_t-2 plus z_t-1) and carried d along it, x' = C_t (x - z_t-1), i.e. the carry C_t of
 scimm.ego with no turn (an offset from a path does not turn with the ego) and the shift
 u_t = -C_t z_t-1. The teacher's path is then the plan plus the filter's correction along its

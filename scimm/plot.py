@@ -11,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
-from harness.common.atomic import write_atomic
+from files.atomic import write_atomic
 from scimm.modes import MODES, IMMConfig
 from scimm.teacher import teach
 

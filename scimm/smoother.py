@@ -1,5 +1,5 @@
 """Fixed-interval IMM smoother: a Kim-type Rauch-Tung-Striebel backward pass over a stored
-IMM forward pass (notes imm.md §3.2; Kim 1994 for the mode probabilities), batched over
+IMM forward pass (docs/design.md §6.2; Kim 1994 for the mode probabilities), batched over
 sequences with NumPy. Non-causal: frame t's estimate uses every frame of the sequence.
 
 Input: the forward filter's mode-matched posteriors x_k^j, P_k^j and mode probabilities

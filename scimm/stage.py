@@ -1,10 +1,10 @@
 """The teacher stage as functions: a dataset folder in, teacher labels and the paper's
-Table 2 files out (SPEC §6). ``sumo-scimm teacher`` and ``sumo-scimm reproduce`` call them.
+Table 2 files out (docs/design.md §6). ``sumo-scimm teacher`` and ``sumo-scimm reproduce`` call them.
 
     DIR/teacher/<method>/          labels of each method (scimm.teacher's file contract)
     DIR/teacher/table2.csv         paper Table 2, groups = dominant SC-IMM mode
     DIR/teacher/mode_meaning.csv   frames of each labelled situation whose dominant mode means it
-    DIR/teacher/fit_residuals.csv  fit residual of the observation per dominant mode (SPEC §6.1)
+    DIR/teacher/fit_residuals.csv  fit residual of the observation per dominant mode (docs/design.md §6.1)
     DIR/teacher/lag.csv            alignment offset of v(0) and c0 per mode and teacher (scimm.lag)
     DIR/teacher/standstill.csv     teacher speed where the expert stands; mode switches per minute
     DIR/teacher/stops_starts.csv   label speeds 1.25 s and 2.5 s ahead at red lights and starts (scimm.lag)
@@ -18,7 +18,7 @@ import numpy as np
 import pandas as pd
 from tqdm import tqdm
 
-from harness.common.atomic import write_atomic
+from files.atomic import write_atomic
 from harness.common.errors import BadInput
 from scimm import pathspeed
 from scimm import teacher as tch

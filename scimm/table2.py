@@ -1,4 +1,4 @@
-"""Paper Table 2 (SPEC §6.5): frame-to-frame variation of the raw expert labels and of the
+"""Paper Table 2 (docs/design.md §6.5): frame-to-frame variation of the raw expert labels and of the
 teacher labels, grouped by the dominant SC-IMM mode; and the mode-meaning check.
 
 Every metric is computed the same way for every row, from a label sequence of one episode:
@@ -185,7 +185,7 @@ RESIDUALS = ("path_mean", "path_p95", "path_max", "speed_mean", "speed_p95")
 
 def fit_residuals(episodes: Sequence[dict[str, np.ndarray]]) -> pd.DataFrame:
     """How well the observation z (paper eq. 2-3, scimm.pathspeed) represents each frame's
-    expert labels, per group of the dominant SC-IMM mode (SPEC §6.1: the residual per mode).
+    expert labels, per group of the dominant SC-IMM mode (docs/design.md §6.1: the residual per mode).
 
     episodes: each {"path" (T, 20, 2), "speed_wps" (T, 10, 2), "mu" (T, 5) SC-IMM posteriors}.
     Per frame, ``pathspeed.residuals``: the largest distance between a label path point and

@@ -1,11 +1,11 @@
-"""Teacher signals of a dataset (SPEC §6.4, paper §III.2): run the Fixed-IMM or the SC-IMM over
+"""Teacher signals of a dataset (docs/design.md §6.4, paper §III.2): run the Fixed-IMM or the SC-IMM over
 every episode and write the path teacher P^T, speed teacher V^T and mode posterior mu^T.
 
 Per episode: observations z_t = pathspeed.observe(labels of frame t) (paper eq. 2-3); cues
 s_t (scimm.cues) give A(s_t), gamma(s_t) (scimm.modes; Fixed-IMM: A = 0, gamma = 1), turned
 into Pi_t, Q_t by scimm.scene.conditioned (paper eq. 8-9; Pi_t, Q_t govern the step t-1 -> t);
 the recorded poses give the ego's motion from frame t-1 to t, the known input that carries
-the state into frame t's ego frame (scimm.ego, SPEC §6.2); scimm.imm.imm_filter gives the
+the state into frame t's ego frame (scimm.ego, docs/design.md §6.2); scimm.imm.imm_filter gives the
 fused state x_t^T (paper eq. 7) and mu_t; the teacher labels are
 pathspeed.state_path(x_t^T) and pathspeed.state_speeds(x_t^T). Every mode starts at the
 first observation with covariance P0. With ``IMMConfig.path_state == "plan"`` the path part
@@ -37,7 +37,7 @@ from pathlib import Path
 
 import numpy as np
 
-from harness.common.atomic import write_atomic
+from files.atomic import write_atomic
 from scimm import pathspeed, planref
 from scimm.cues import cue_vector
 from scimm.ego import carry_inputs, pose_change

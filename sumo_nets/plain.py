@@ -20,6 +20,8 @@ from xml.sax.saxutils import quoteattr
 
 import numpy as np
 
+from files.atomic import write_atomic
+
 KMH = 1.0 / 3.6  # km/h -> m/s
 
 Point = tuple[float, float]
@@ -32,12 +34,12 @@ class RoadClass:
     name: str
     speed: float  # speed limit [m/s]
     lanes: int  # driving lanes per direction
-    lane_width: float  # [m]; SPEC §2.1 wants 3-3.5 m
+    lane_width: float  # [m]; docs/design.md §2.1 wants 3-3.5 m
     priority: int  # SUMO edge priority: higher roads get right of way at priority junctions
     sidewalk: float  # sidewalk width [m] on the right of each direction
 
 
-# Road classes by SPEC §2.1: speed limits 30 / 50 / 60 km/h, lanes 3-3.5 m wide.
+# Road classes by docs/design.md §2.1: speed limits 30 / 50 / 60 km/h, lanes 3-3.5 m wide.
 RESIDENTIAL = RoadClass("residential", 30 * KMH, 1, 3.0, 1, 2.0)
 TOWN = RoadClass("town", 50 * KMH, 1, 3.25, 2, 2.0)
 DOWNTOWN = RoadClass("downtown", 50 * KMH, 2, 3.5, 3, 3.0)
@@ -203,14 +205,5 @@ def build_net(plain: PlainNet, out: Path, note: str = "") -> Path:
         if n != 1:
             raise RuntimeError("netconvert output has no header comment to replace")
     out.parent.mkdir(parents=True, exist_ok=True)
-    tmp_out = out.with_suffix(out.suffix + ".tmp")
-    try:
-        tmp_out.write_bytes(data)
-        tmp_out.replace(out)
-    except BaseException:  # a full disk, a stop: no temporary file left
-        try:
-            tmp_out.unlink()
-        except OSError:
-            pass
-        raise
+    write_atomic(out, data)
     return out

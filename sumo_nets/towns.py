@@ -1,4 +1,4 @@
-"""Seeded builders of the four towns (SPEC §2.1), loosely after CARLA's Town01/02/07/12.
+"""Seeded builders of the four towns (docs/design.md §2.1), loosely after CARLA's Town01/02/07/12.
 
 Each builder takes a ``numpy.random.Generator`` that jitters junction positions and road
 bends, and returns a :class:`~sumo_nets.plain.PlainNet`. Layout is by hand (which roads

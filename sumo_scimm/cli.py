@@ -1,4 +1,4 @@
-"""The ``sumo-scimm`` command line: one subcommand per stage of the data flow (SPEC §1),
+"""The ``sumo-scimm`` command line: one subcommand per stage of the data flow (docs/design.md §1),
 every one registered here.
 
 ``main(argv) -> int`` is importable and testable. Results go to stdout; diagnostics (what
@@ -26,13 +26,14 @@ import sys  # noqa: E402
 import threading  # noqa: E402
 
 from harness.common.errors import BadInput  # noqa: E402
-from sumo_scimm import bench_commands, model_commands, run_commands, teacher_commands, world_commands  # noqa: E402
+from sumo_scimm import model_commands, run_commands, teacher_commands, world_commands  # noqa: E402
+from sumo_scimm.bench import command as bench_command  # noqa: E402
 from sumo_scimm import replay_commands  # noqa: E402
 from sumo_scimm.options import EXIT_BAD_INPUT, Parser  # noqa: E402
 
 # in the order of the data flow: nets, routes | eval, render, score, report, collect, data |
 # replay | teacher | train, reproduce | bench
-COMMANDS = (world_commands, run_commands, replay_commands, teacher_commands, model_commands, bench_commands)
+COMMANDS = (world_commands, run_commands, replay_commands, teacher_commands, model_commands, bench_command)
 
 
 class Terminated(KeyboardInterrupt):

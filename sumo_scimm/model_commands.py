@@ -1,4 +1,4 @@
-"""``sumo-scimm train`` and ``sumo-scimm reproduce``: the student's subcommands (SPEC §7, §8)."""
+"""``sumo-scimm train`` and ``sumo-scimm reproduce``: the student's subcommands (docs/design.md §7, §8)."""
 from __future__ import annotations
 
 import argparse
@@ -89,7 +89,7 @@ def _reproduce(args: argparse.Namespace) -> int:
 
 def register(sub: argparse._SubParsersAction) -> None:
     """Add ``train`` and ``reproduce``."""
-    tr = sub.add_parser("train", help="train the student on a collected dataset (SPEC §7); 'train curves' "
+    tr = sub.add_parser("train", help="train the student on a collected dataset (docs/design.md §7); 'train curves' "
                         "plots loss curves",
                         description="Train the student (BEV + target point + speed -> path and speed "
                         "waypoints) on a 'collect' folder, optionally with teacher labels.")

@@ -1,5 +1,5 @@
 """``sumo-scimm replay``: several agents fed the identical inputs of a reference run, their
-output stability compared route-paired (harness.runs.replay, SPEC §9)."""
+output stability compared route-paired (harness.runs.replay, docs/design.md §9)."""
 from __future__ import annotations
 
 import argparse

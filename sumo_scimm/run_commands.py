@@ -1,15 +1,16 @@
 """``sumo-scimm eval``, ``render``, ``score``, ``report``, ``collect`` and ``data``: the
-closed loop's subcommands (SPEC §3, §5, §9). Each parses its options, calls the stage
+closed loop's subcommands (docs/design.md §3, §5, §9). Each parses its options, calls the stage
 function (harness.runs.evaluate, harness.loop.render, harness.scoring) and prints the result."""
 from __future__ import annotations
 
 import argparse
 import json
+import math
 import sys
 import zipfile
 from pathlib import Path
 
-from harness.common.atomic import write_atomic
+from files.atomic import write_atomic
 from harness.common.errors import BadInput
 from harness.loop.episode import AGENT_TIMEOUT
 from sumo_scimm.options import add_agent_options, add_backend_options, backend_of, seed_arg
@@ -32,8 +33,16 @@ def _eval(args: argparse.Namespace) -> int:
     if mem is not None:
         print(f"worker memory: {mem['workers']} processes, up to {mem['max_routes_per_worker']} routes each; "
               f"RSS after first route {mem['first_mb']:.0f} MB, peak {mem['peak_mb']:.0f} MB, "
-              f"growth {mem['growth_mb']:+.1f} MB (trend {mem['slope_mb_per_100']:+.2f} MB per 100 routes)")
+              f"growth {mem['growth_mb']:+.1f} MB ({memory_trend(mem['slope_mb_per_100'])})")
     return 0
+
+
+def memory_trend(slope_mb_per_100: float) -> str:
+    """The eval line's worker-memory trend: a least-squares slope needs a worker that ran at
+    least 3 routes (harness.runs.runner.rss_summary), else there is none to print."""
+    if math.isfinite(slope_mb_per_100):
+        return f"trend {slope_mb_per_100:+.2f} MB per 100 routes"
+    return "no trend: no worker ran 3 routes"
 
 
 def _render(args: argparse.Namespace) -> int:

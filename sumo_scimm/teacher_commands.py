@@ -1,10 +1,10 @@
-"""``sumo-scimm teacher ...``: the teacher stage's subcommands (SPEC §6).
+"""``sumo-scimm teacher ...``: the teacher stage's subcommands (docs/design.md §6).
 
     sumo-scimm teacher --data DIR [--method fixed|scimm|smoother|all] [--path-state plan|ego]
         writes DIR/teacher/<method>/ (scimm.teacher), then, when every method's folder is
         complete, prints paper Table 2 (also DIR/teacher/table2.csv), the mode-meaning
         check (also DIR/teacher/mode_meaning.csv), the fit residual of the observation per
-        mode (also DIR/teacher/fit_residuals.csv; SPEC §6.1) and the lag figures (also
+        mode (also DIR/teacher/fit_residuals.csv; docs/design.md §6.1) and the lag figures (also
         DIR/teacher/lag.csv and standstill.csv; scimm.lag).
     sumo-scimm teacher plot --data DIR --episode E --out FILE.png
         paper Fig. 4 for episode E (its file stem, e.g. 12_rep0).

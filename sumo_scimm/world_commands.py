@@ -1,5 +1,5 @@
 """``sumo-scimm nets ...`` and ``sumo-scimm routes ...``: the towns and the route sets
-(SPEC §2), registered by ``sumo_scimm.cli``. Bad input raises ``harness.common.errors.BadInput``."""
+(docs/design.md §2), registered by ``sumo_scimm.cli``. Bad input raises ``harness.common.errors.BadInput``."""
 from __future__ import annotations
 
 import argparse

@@ -322,7 +322,7 @@ def test_data_show_on_damaged_or_empty_datasets(tmp_path):
 
 
 def test_agent_may_be_a_student_checkpoint_path(tmp_path):
-    """SPEC §3: ``--agent PATH.pt`` is the student agent with that checkpoint; a missing
+    """docs/design.md §3: ``--agent PATH.pt`` is the student agent with that checkpoint; a missing
     file, or a different --agent-config beside it, is one line."""
     from harness.loop.agent import check_agent
     ckpt = Path(__file__).resolve().parents[1] / "model" / "checkpoints" / "scimm" / "student.pt"
@@ -340,7 +340,7 @@ def test_agent_may_be_a_student_checkpoint_path(tmp_path):
 
 
 def test_render_draws_the_waypoint_overlay_of_eval_runs(one_route_run, tmp_path):
-    """SPEC §9: render makes a video or the Fig. 5 overlay (--runs); the overlay's bad inputs
+    """docs/design.md §9: render makes a video or the Fig. 5 overlay (--runs); the overlay's bad inputs
     are one line and write nothing."""
     out = tmp_path / "fig5.png"
     code, printed = _cli(["render", "--route", "0", "--runs", str(one_route_run), "--out", str(out)])

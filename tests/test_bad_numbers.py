@@ -1,4 +1,4 @@
-"""Every number read from a route file or a results file is checked (SPEC §12): a value
+"""Every number read from a route file or a results file is checked (docs/design.md §12): a value
 that is not a finite number in its range is one line naming the attribute or field, exit
 code 2, never a traceback, never a score. Fuzzed with hypothesis against an oracle written
 here from the documented ranges (scenarios.routefile, harness.scoring.validate)."""

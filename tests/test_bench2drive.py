@@ -1,6 +1,6 @@
 """Bench2Drive's Success Rate, Driving Efficiency and Driving Smoothness, and its
 metric_info.json, on short synthetic drives with every expected value worked out by hand
-from Bench2Drive's definitions (notes leaderboard2.md §7.2-§7.4)."""
+from Bench2Drive's definitions (docs/design.md §9.2)."""
 from __future__ import annotations
 
 import json
@@ -188,6 +188,24 @@ def test_bench2drive_rules_log_every_minimum_speed_checkpoint():
     # 96-100 at 150 %, twice (the leaderboard's double terminate)
     assert b2d == [speed(50.0)] * 8 + [speed(100.0)] + [speed(150.0)] * 9
     assert route_efficiency(b2d) == pytest.approx(1850 / 18)
+
+
+@pytest.mark.parametrize("length, messages", [(142.0, 19), (164.0, 20)])
+def test_bench2drive_checkpoints_number_19_or_20_with_the_route_length(length, messages):
+    """Route points 1 m apart, the ego on every one in turn. A checkpoint of length / 20
+    closes at the first point more than that past the last closing point: 142 m gives
+    7.1 m, closed every 8 m, 17 times up to 136 m (the next would need 143.1 m); 164 m
+    gives 8.2 m, closed every 9 m, 18 times up to 162 m. Then the final checkpoint twice
+    (> 95 % at the end, the double terminate): 19 and 20 messages, as town12_smoke's
+    routes 1 (142.295 m) and 0 (164.503 m) get under b2d."""
+    from types import SimpleNamespace
+
+    from harness.scoring.infractions import min_speed
+    n = int(length) + 1
+    plan = SimpleNamespace(s=np.arange(float(n)), length=length)
+    k = np.arange(n)
+    log = {"t": k * DT, "route_index": k.astype(float), "bg_speed": np.full(n, 10.0), "v": np.full(n, 5.0)}
+    assert min_speed(log, plan, "b2d", ended_normally=True) == [speed(50.0)] * messages
 
 
 @pytest.mark.parametrize("rules, expected", [("b2d", 100.0), ("lb2.0", None)])

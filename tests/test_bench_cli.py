@@ -1,5 +1,5 @@
 """``sumo-scimm bench`` as a user runs it, on one town12_smoke route with the shipped SC-IMM
-student: every figure of SPEC §11 is printed and written as JSON beside its reference.
+student: every figure of docs/design.md §11 is printed and written as JSON beside its reference.
 The figures themselves are never asserted (they depend on the machine's load); that they
 were measured is: finite, positive, and the bare replay stepped the episode's traffic."""
 from __future__ import annotations

@@ -7,7 +7,7 @@ from __future__ import annotations
 import math
 import time
 
-from harness.runs.bench import _bare_step_ms
+from sumo_scimm.bench.closed_loop import _bare_step_ms
 from harness.loop.episode import run_episode
 from scenarios import set_path
 from scenarios.routefile import read_routes

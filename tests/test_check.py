@@ -1,5 +1,5 @@
 """``sumo-scimm routes check`` and other bad input: one line naming the route and the
-reason, exit code 2, no traceback (SPEC §2.2, §12)."""
+reason, exit code 2, no traceback (docs/design.md §2.2, §12)."""
 from __future__ import annotations
 
 import contextlib

@@ -1,5 +1,5 @@
 """The closed loop in real libsumo: no lane glue, SUMO traffic respects the ego, hazards
-in the BEV, failures recorded per route, resume, determinism (SPEC §3, §12)."""
+in the BEV, failures recorded per route, resume, determinism (docs/design.md §3, §12)."""
 from __future__ import annotations
 
 import json

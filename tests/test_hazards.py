@@ -1,4 +1,5 @@
-"""The hazard actors: one class per hazard type behind one interface, chosen by
+"""The hazard registry and the hazard actors: one ``HazardType`` per type
+(scenarios.hazards.HAZARDS) and one actor class per type behind one interface, chosen by
 ``make_hazard`` from the route file's type name (no simulation is started here)."""
 from __future__ import annotations
 
@@ -6,10 +7,13 @@ import numpy as np
 import pytest
 
 from harness.sim.hazard_actor import HazardActor
-from harness.sim.hazards import HAZARD_ACTORS, TIMEOUT_HAZARDS, make_hazard
+from harness.scoring.infractions import scenario_timeouts
+from harness.sim.hazards import HAZARD_ACTORS, actor, make_hazard
 from harness.sim.plan import build_plan
 from scenarios import SETS, set_path
-from scenarios.hazards import HAZARDS
+from scenarios import hazards as scenario_hazards
+from scenarios.hazards import HAZARDS, HazardType, Param, Site, check_params, find_sites
+from scenarios.make import _draw
 from scenarios.routefile import Hazard, read_routes
 from sumo_nets import load_net
 
@@ -29,7 +33,8 @@ def test_every_hazard_of_the_committed_sets_has_an_actor_class(name):
 
 def test_the_scenario_timeout_applies_to_the_hazards_that_can_block_the_ego():
     # Leaderboard 2.0: obstacles, a red light and an unprotected left turn can hold the ego
-    assert set(TIMEOUT_HAZARDS) == {"ParkedObstacle", "SignalizedJunction", "UnprotectedLeftTurn"}
+    assert {k for k, h in HAZARDS.items() if h.timeout} == {"ParkedObstacle", "SignalizedJunction",
+                                                            "UnprotectedLeftTurn"}
 
 
 def test_make_hazard_builds_each_hazard_of_a_route_as_its_type(short_routes):
@@ -70,3 +75,52 @@ def test_an_unknown_hazard_type_is_refused_by_name(short_routes):
     bad = Hazard("Meteor_1", "Meteor", route.hazards[0].trigger, {"distance": "20"})
     with pytest.raises(ValueError, match="'Meteor'"):
         make_hazard(bad, plan, net, np.random.default_rng(0), 0)
+
+
+def test_a_new_hazard_type_is_one_registry_entry_and_one_actor_class(short_routes, monkeypatch):
+    """A type added as one ``HazardType`` (scenario stage) and one ``@actor`` class
+    (simulation stage) is validated, found on a route, drawn by the builder, timed out
+    and built, with no other change anywhere."""
+    debris = HazardType("Debris", "ConstructionObstacle", "debris on the road", (
+        Param("distance", "float", 10, 50), Param("pieces", "int", 1, 5)),
+        lambda net, path: [Site("Debris", 50.0, 60.0)], (20, 30),
+        lambda rng, p: p | {"pieces": str(int(rng.integers(1, 6)))}, timeout=True)
+    monkeypatch.setitem(HAZARDS, "Debris", debris)  # the scenario stage's one entry
+    monkeypatch.setitem(HAZARD_ACTORS, "Debris", None)  # (removed again after the test)
+
+    @actor
+    class Debris(HazardActor):  # the simulation stage's one entry
+        pass
+
+    assert check_params("Debris", {"distance": "20", "pieces": "3"}) is None
+    assert check_params("Debris", {"distance": "20", "pieces": "9"}) == "Debris: pieces=9 is outside [1, 5]"
+    route = short_routes[0]
+    net = load_net(route.town)
+    plan = build_plan(route, net)
+    assert Site("Debris", 50.0, 60.0) in find_sites(net, plan.path)
+    s, params = _draw("Debris", Site("Debris", 50.0, 60.0), plan.path, np.random.default_rng(0))
+    assert 50.0 <= s <= 60.0 and check_params("Debris", params) is None
+    hazard = Hazard("Debris_1", "Debris", route.hazards[0].trigger, params)
+    built = make_hazard(hazard, plan, net, np.random.default_rng(0), 0)
+    assert type(built) is Debris
+    built.started = True
+    assert built.timeout_active(built.site_s - 1.0, 10.0)
+    stood = {"route_index": np.full(301, float(np.searchsorted(plan.s, 50.0))),  # 300 s at route s = 50 m
+             "t": np.arange(301.0)}
+    assert scenario_timeouts(stood, plan, [("Debris", 10.0, 60.0, {})]) == ["Agent timed out a scenario"]
+
+
+def test_the_scoring_reads_timeouts_and_two_ways_from_the_registry(short_routes):
+    """An ego standing 300 s at route s = 50 m, past the trigger (10 m) and short of the
+    site (60 m), times out a hazard only if its type's entry says so (Leaderboard:
+    SCENARIO_TIMEOUT 240 s); only a ParkedObstacle bypassed through the oncoming lane is a
+    TwoWays scenario."""
+    assert {k for k, h in HAZARDS.items() if h.two_ways} == {"ParkedObstacle"}
+    assert scenario_hazards.two_ways("ParkedObstacle", {"bypass": "oncoming"})
+    assert not scenario_hazards.two_ways("ParkedObstacle", {"bypass": "neighbour"})
+    route = short_routes[0]
+    plan = build_plan(route, load_net(route.town))
+    stood = {"route_index": np.full(301, float(np.searchsorted(plan.s, 50.0))), "t": np.arange(301.0)}
+    for kind, h in HAZARDS.items():
+        out = scenario_timeouts(stood, plan, [(kind, 10.0, 60.0, {})])
+        assert out == (["Agent timed out a scenario"] if h.timeout else [])

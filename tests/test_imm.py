@@ -1,5 +1,5 @@
 """The batched IMM (scimm.imm) against exact reductions and filterpy's IMMEstimator
-(notes imm.md §2.5 items 1-7, 9, 10)."""
+(the properties listed in docs/design.md §6.2)."""
 from __future__ import annotations
 
 import numpy as np
@@ -281,7 +281,7 @@ def test_shared_and_per_frame_inputs_give_identical_results():
 
 def test_bench_reports_its_figures_from_a_fresh_process():
     # not a timing test: the figures exist and the IMM agrees with filterpy on the bench system
-    from scimm.bench import run_imm_bench
+    from sumo_scimm.bench.imm import run_imm_bench
     r = run_imm_bench(batch=3, frames=12, filterpy_sequences=2)
     assert (r["imm_batch"], r["imm_frames"]) == (3, 12)
     assert r["imm_frames_per_s"] > 0

@@ -1,9 +1,11 @@
-"""The layout of the code (SPEC §1): imports go forward along the data flow, never back, and
+"""The layout of the code (docs/design.md §1): imports go forward along the data flow, never back, and
 never by a name string except the documented ``--agent module:Class`` loader.
 
 Stages, in the order of the data flow (a module may import its own stage and earlier ones):
 
-    sumo_nets, controller  <  scenarios  <  harness  <  scimm  <  model  <  sumo_scimm
+    files  <  sumo_nets, controller  <  scenarios  <  harness  <  scimm  <  model  <  sumo_scimm
+
+(``files`` is not a stage: the whole-or-nothing file writes every stage uses)
 
 and inside harness, its subpackages in this order:
 
@@ -20,7 +22,7 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
-STAGES = {"sumo_nets": 0, "controller": 0, "scenarios": 1, "harness": 2, "scimm": 3, "model": 4, "sumo_scimm": 5}
+STAGES = {"files": -1, "sumo_nets": 0, "controller": 0, "scenarios": 1, "harness": 2, "scimm": 3, "model": 4, "sumo_scimm": 5}
 HARNESS = {"common": 0, "sim": 1, "sensors": 2, "scoring": 3, "loop": 4, "expert": 5, "runs": 6}
 # the one place a module is imported by a name string: the agent loader of --agent module:Class
 NAME_STRING_LOADER = "harness/loop/agent.py"

@@ -1,6 +1,6 @@
 """results.json as the leaderboard's StatisticsManager writes it, to the character, for a
 finished, a single-route, an unfinished and a crashed run: each expected file is built by
-hand below from the leaderboard's rules (notes leaderboard2.md §5-§6: its code's number
+hand below from the leaderboard's rules (docs/design.md §9.1: its code's number
 types, its rounding, its order of operations) and compared as text. Also `score` on
 Bench2Drive files under Leaderboard rules, and on files that are not results files."""
 from __future__ import annotations

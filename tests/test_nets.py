@@ -1,4 +1,4 @@
-"""The committed towns: figures of SPEC §2.1, and reproducible rebuilds (real netconvert)."""
+"""The committed towns: figures of docs/design.md §2.1, and reproducible rebuilds (real netconvert)."""
 from __future__ import annotations
 
 import pytest

@@ -1,4 +1,4 @@
-"""The Ray backend (SPEC §10): on a local Ray with 2 CPUs, the same records and
+"""The Ray backend (docs/design.md §10): on a local Ray with 2 CPUs, the same records and
 logs as the local backend on town12_smoke, one process per route, the same crash records,
 and an unreachable cluster is bad input; a two-node cluster started with docs/cluster.md's
 commands (token authentication on) gives the local backend's records too."""

@@ -1,4 +1,4 @@
-"""Faults in real runs, interrupted runs, determinism and bad input (SPEC §12).
+"""Faults in real runs, interrupted runs, determinism and bad input (docs/design.md §12).
 
 Already covered in test_closed_loop.py and not repeated here: an agent that raises or
 returns NaN, a worker killed with SIGKILL, SIGKILL of the whole run then --resume,
@@ -157,7 +157,7 @@ def test_a_ctrl_c_or_sigterm_while_a_route_is_written_lands_after_its_files(sign
     atomic.signals_held: a SIGINT (or a SIGTERM, which ``sumo-scimm`` turns into a
     Terminated exception) that arrives in between is raised only after the block (before,
     a Ctrl-C there left a record in records.jsonl that records.csv lacked)."""
-    from harness.common.atomic import signals_held
+    from files.atomic import signals_held
     from sumo_scimm.cli import Terminated, _raise_terminated
     done = []
     # Python's own Ctrl-C handler, also when this test runs where SIGINT is ignored
@@ -184,7 +184,7 @@ def test_a_worker_ended_while_it_writes_a_file_leaves_no_temporary_file(tmp_path
 import os, signal, sys
 import numpy as np
 from pathlib import Path
-from harness.common.atomic import savez_atomic
+from files.atomic import savez_atomic
 path = Path({str(tmp_path)!r}) / "0_rep0.npz"
 write = np.savez_compressed
 def stopped_midway(file, **arrays):  # the parent's SIGTERM arrives while the file is written

@@ -1,4 +1,4 @@
-"""The committed route sets: SPEC §2.2 figures, reproducible rebuilds, disjointness,
+"""The committed route sets: docs/design.md §2.2 figures, reproducible rebuilds, disjointness,
 and route lengths against SUMO's own driving distance (real libsumo)."""
 from __future__ import annotations
 

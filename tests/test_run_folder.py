@@ -1,5 +1,5 @@
 """A run folder held by one process, bounds on the route runs of a run, and agents that raise
-what is not an Exception (SPEC §12). Real processes and real libsumo: a second process
+what is not an Exception (docs/design.md §12). Real processes and real libsumo: a second process
 holds the folder."""
 from __future__ import annotations
 

@@ -1,5 +1,5 @@
 """Leaderboard scoring from infraction lists, against values worked out by hand from the
-rules (notes leaderboard2.md §5-§6), and `sumo-scimm score` on a CARLA-style file."""
+rules (docs/design.md §9.1), and `sumo-scimm score` on a CARLA-style file."""
 from __future__ import annotations
 
 import json
@@ -217,4 +217,4 @@ def test_summary_has_bench2drives_success_rate():
     records = [rec("Perfect"), rec("Completed", min_speed_infractions=[speed(40.0)]),
                rec("Completed", outside_route_lanes=[outside(0.5, 0.01)]), rec("Failed - Agent got blocked")]
     rows = {r["metric"]: r for r in summary_rows(records, {"_checkpoint": {"global_record": {}}})}
-    assert rows["success_rate"]["value"] == 50.0
+    assert rows["success_rate (%)"]["value"] == 50.0

@@ -1,6 +1,6 @@
 """Teacher signals (scimm.teacher, scimm.modes, scimm.cues), Table 2 metrics (scimm.table2)
 and the ``teacher`` CLI. Complements tests/test_imm.py with the scene-conditioned items of
-notes imm.md §2.5 (5, 6, 9, 10) on the project's own five-mode config."""
+docs/design.md §6.2 (simplex, covariances, A = 0 and gamma = 1, batching) on the project's own five-mode config."""
 from __future__ import annotations
 
 import json
@@ -277,7 +277,7 @@ def test_teacher_cli_bad_input_is_one_line_and_exit_2(argv, message, dataset, ca
 
 
 def test_fit_residuals_are_zero_for_representable_labels_and_grouped_by_dominant_mode():
-    """SPEC §6.1's residual per mode. Cruise frames: labels made from states (an arc with a
+    """docs/design.md §6.1's residual per mode. Cruise frames: labels made from states (an arc with a
     curvature rate; a linear speed profile), which z represents exactly. Turn frames: a
     path with a 90 deg kink (no quadratic heading follows a step) and a speed step, whose
     RMS residual is checked against numpy's own weighted least-squares line (np.polyfit,

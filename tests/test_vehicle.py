@@ -12,7 +12,7 @@ from harness.sim.contacts import overlaps
 
 
 def test_speed_model_matches_the_fitted_polynomials():
-    # notes controllers.md §6.6 (computed there): full throttle at 10 km/h -> +1.22 km/h per
+    # docs/design.md §8.4: full throttle at 10 km/h -> +1.22 km/h per
     # tick; braking at 30 km/h -> -1.68 km/h per tick
     assert (next_speed(10 / 3.6, 1.0, False) * 3.6 - 10) == pytest.approx(1.22, abs=0.005)
     assert (30 - next_speed(30 / 3.6, 0.0, True) * 3.6) == pytest.approx(1.68, abs=0.005)

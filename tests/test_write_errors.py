@@ -1,4 +1,4 @@
-"""Outputs that cannot be written (SPEC §12): checked before the first route; a write that
+"""Outputs that cannot be written (docs/design.md §12): checked before the first route; a write that
 fails stops the run with one line, leaves no temporary file, and --resume finishes it.
 
 Real file-system errors: ENOSPC comes from the kernel, through a link to /dev/full at a
@@ -79,7 +79,7 @@ def test_a_read_only_results_file_is_refused_before_the_first_route(tmp_path):
 
 def test_a_write_that_fails_removes_its_temporary_file_and_names_the_file_meant(tmp_path):
     """ENOSPC from the kernel: the temporary name links to /dev/full."""
-    from harness.common.atomic import savez_atomic, write_atomic
+    from files.atomic import savez_atomic, write_atomic
     log = tmp_path / "0_rep0.npz"
     (tmp_path / "0_rep0.npz.tmp.npz").symlink_to("/dev/full")
     with pytest.raises(OSError) as caught:
@@ -161,7 +161,7 @@ def test_a_full_disk_on_the_ray_driver_stops_the_run_too(tmp_path):
     pytest.importorskip("ray", reason="ray is not installed")
     out = tmp_path / "run"
     (out / "logs").mkdir(parents=True)
-    (out / "logs" / "0_rep0.npz.tmp").symlink_to("/dev/full")  # harness.common.atomic.write_atomic's name
+    (out / "logs" / "0_rep0.npz.tmp").symlink_to("/dev/full")  # files.atomic.write_atomic's name
     code, printed = _cli([*SMOKE_ONE, "--backend", "ray", "--out", str(out)])
     _one_line_exit_2(code, printed, f"cannot write {out / 'logs' / '0_rep0.npz'} (No space left on device)")
     assert (out / "records.jsonl").read_text() == ""

@@ -1,5 +1,5 @@
 """``sumo-scimm collect``: the expert drives a route set and every episode is recorded at
-4 Hz (every 5th tick, as PDM-Lite) for the teacher and the student (SPEC §5).
+4 Hz (every 5th tick, as PDM-Lite) for the teacher and the student (docs/design.md §5).
 
 One file per route run, ``episodes/<route>_rep<k>.npz``, holding per frame (F frames):
 
@@ -13,7 +13,7 @@ One file per route run, ``episodes/<route>_rep<k>.npz``, holding per frame (F fr
     path (F, 20, 2)                                 label: the expert's path at 0..19 m of arc
     speed_wps (F, 10, 2)                            label: ego positions 0.25..2.5 s ahead
     target_speed (F,), flag_* (F,)                  the expert's target and hazard flags
-    cue_* (F,)                                      the scene cues of SPEC §6.3 (docs/dataset.md)
+    cue_* (F,)                                      the scene cues of docs/design.md §6.3 (docs/dataset.md)
     route_file, route_id, town                      to rebuild the plan
 
 Frames are kept only when the whole 2.5 s future exists (the last 2.5 s are dropped).
@@ -28,7 +28,7 @@ from pathlib import Path
 import numpy as np
 
 from controller.vehicle import DT
-from harness.common.atomic import savez_atomic
+from files.atomic import savez_atomic
 from harness.sim.plan import _DIRECTION_TO_OPTION, LANEFOLLOW, to_ego
 
 FRAME_EVERY = 5  # ticks per recorded frame (20 Hz -> 4 Hz)

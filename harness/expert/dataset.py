@@ -17,7 +17,7 @@ import numpy as np
 import pandas as pd
 
 from controller.vehicle import EgoState
-from harness.common.atomic import write_atomic
+from files.atomic import write_atomic
 from harness.common.errors import BadInput
 from harness.sensors.bev import BevRenderer
 from harness.sim.plan import GlobalPlan, build_plan

@@ -1,5 +1,5 @@
-"""The expert: a rule-based privileged driver in the spirit of PDM-Lite (SPEC §4; notes
-controllers.md §4, §6). It sees every actor near the ego, the route's light states and
+"""The expert: a rule-based privileged driver in the spirit of PDM-Lite (docs/design.md §4,
+its controllers §8.2-§8.3). It sees every actor near the ego, the route's light states and
 the map, and drives the route:
 
 - lateral: PDM-Lite's lateral PID (speed-dependent lookahead) on the route, shifted

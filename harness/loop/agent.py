@@ -1,4 +1,4 @@
-"""The agent API, mirroring the CARLA Leaderboard's ``AutonomousAgent`` (SPEC §3).
+"""The agent API, mirroring the CARLA Leaderboard's ``AutonomousAgent`` (docs/design.md §3).
 
 Call order per route: ``set_global_plan(plan)``, ``setup(config)``, ``sensors()`` once
 (validated before the route starts), ``run_step(input_data, timestamp)`` every 0.05 s
@@ -148,7 +148,7 @@ def load_agent(name: str) -> AutonomousAgent:
 def check_agent(name: str, config: str | None) -> tuple[str, str | None]:
     """(agent, config) to run, checked: BadInput unless the agent loads and accepts its
     config (``--agent-config``, a file). ``--agent PATH.pt`` names a student checkpoint
-    (SPEC §3): it is ``--agent student --agent-config PATH.pt``."""
+    (docs/design.md §3): it is ``--agent student --agent-config PATH.pt``."""
     if name.endswith(".pt") and ":" not in name:
         if not Path(name).is_file():
             raise BadInput(f"--agent {name!r}: no such checkpoint file")

@@ -1,4 +1,4 @@
-"""One episode = one route in libsumo at 0.05 s steps (SPEC §3).
+"""One episode = one route in libsumo at 0.05 s steps (docs/design.md §3).
 
 Each tick, as in the leaderboard: the agent decides on the state after the last step
 (sensors built from one snapshot), the harness integrates the ego with the vehicle
@@ -274,7 +274,7 @@ class _RouteEnd:
 class Scene:
     """Everything SUMO simulates in an episode: the ego mirrored into it, the route's
     hazards, the background traffic and the route bubble. ``advance`` is the simulation's
-    half of a tick; ``harness.runs.bench`` replays a logged ego through it to time SUMO and
+    half of a tick; ``sumo_scimm.bench.closed_loop`` replays a logged ego through it to time SUMO and
     its traffic alone."""
 
     def __init__(self, route: Route, net, plan: GlobalPlan, world: World,

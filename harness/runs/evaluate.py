@@ -1,5 +1,5 @@
 """The evaluation and collection stages as functions: a route set in, a run folder out
-(SPEC §3, §5, §10). ``sumo-scimm eval`` and ``collect`` call them, and so does
+(docs/design.md §3, §5, §10). ``sumo-scimm eval`` and ``collect`` call them, and so does
 ``sumo-scimm reproduce``; every check of the user's input happens before a route runs and
 raises ``BadInput`` with one line naming the problem and the fix.
 

@@ -1,4 +1,4 @@
-"""One route run as a job: its seed, driving it in this process, and its record (SPEC §10).
+"""One route run as a job: its seed, driving it in this process, and its record (docs/design.md §10).
 
 A ``Job`` is what a worker (a local process or a Ray task) gets; ``run_job`` drives the
 route, saves its per-tick log (``logs/<route>_rep<k>.npz``), detects the infractions and
@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from harness.common.atomic import savez_atomic
+from files.atomic import savez_atomic
 from harness.loop.episode import AGENT_TIMEOUT
 from harness.scoring.bench2drive import record_keys
 from harness.scoring.infractions import KEYS
@@ -135,8 +135,20 @@ def run_job(job: Job) -> dict:
 
 def crash_record(job: Job, reason: str) -> dict:
     """The record of a route whose simulation or worker failed: "Failed - Simulation crashed"."""
-    return make_record(job, FAILED_SIMULATION, 0.0, float(job.route.length), 0.0, 0.0, 0, reason,
+    return make_record(job, FAILED_SIMULATION, 0.0, traced_length(job.route), 0.0, 0.0, 0, reason,
                        {k: [] for k in KEYS}, {}, job.rules)
+
+
+def traced_length(route: Route) -> float:
+    """The route's length along its traced lanes [m], the figure a driven route's record has
+    (the episode's plan); the route file's ``length`` (the same to the cm) if the route
+    cannot be traced."""
+    from scenarios.geometry import trace
+    from sumo_nets import load_net
+    try:
+        return trace(load_net(route.town), list(route.edges), route.depart_pos, route.arrival_pos).length
+    except (ValueError, KeyError, OSError):  # a route or net that does not trace (RouteError, UnknownTown)
+        return float(route.length)
 
 
 def run_job_safely(job: Job) -> dict:

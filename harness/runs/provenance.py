@@ -32,8 +32,8 @@ from harness.common.errors import BadInput
 # folder as a results file (Bench2Drive's merge_route_json.py) reads results.json alone
 RUN_FILE = "run.jsonc"
 OLD_RUN_FILE = "run.json"  # its name in run folders made before
-# the stages (SPEC §1) and the files in them that can change a record
-PACKAGES = ("scenarios", "sumo_nets", "controller", "harness", "scimm", "model", "sumo_scimm")
+# the stages (docs/design.md §1) and the files in them that can change a record
+PACKAGES = ("files", "scenarios", "sumo_nets", "controller", "harness", "scimm", "model", "sumo_scimm")
 SUFFIXES = (".py", ".xml", ".pt")
 # the distributions whose code runs inside the loop, the scoring or the student's export
 LIBRARIES = ("libsumo", "sumolib", "numpy", "scipy", "opencv-python-headless", "torch", "onnxruntime", "onnx",

@@ -1,4 +1,4 @@
-"""The Ray backend of the runner (SPEC §10): each route run is a Ray task.
+"""The Ray backend of the runner (docs/design.md §10): each route run is a Ray task.
 
 ``sumo-scimm eval --backend ray [--address ADDR]``. Without ``--address`` a local Ray is
 started with ``--workers`` CPUs (default: every core) and shut down at the end; with it,
@@ -33,7 +33,7 @@ import socket
 import tempfile
 from pathlib import Path
 
-from harness.common.atomic import write_atomic
+from files.atomic import write_atomic
 from harness.runs.jobs import Job, b2d_dir, crash_record, run_job_safely, worker_stats
 
 OUTPUT_KINDS = ("logs", "episodes", "b2d")  # folders of a task's files: Job.log_dir, Job.collect_dir, b2d_dir

@@ -40,7 +40,7 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from harness.common.atomic import savez_atomic, write_atomic
+from files.atomic import savez_atomic, write_atomic
 from harness.common.errors import BadInput
 from harness.loop.agent import check_agent, load_agent, split_output, validate_sensors
 from harness.loop.episode import sensor_inputs
@@ -293,7 +293,7 @@ def replay_table(rows: list[dict], agents: list[str], out: Path, n_boot: int = 2
 
 
 REPLAY_AGENTS = ("baseline", "fixed", "scimm")  # the bench's replay: three of the shipped students
-REPLAY_TARGET_S = 300.0  # SPEC §11: 100 routes with 3 agents in <= 5 min on 2 cores
+REPLAY_TARGET_S = 300.0  # docs/design.md §11: 100 routes with 3 agents in <= 5 min on 2 cores
 
 
 def replay_figure(run: Path, workers: int, agents: tuple[str, ...] = REPLAY_AGENTS) -> dict:

@@ -1,4 +1,4 @@
-"""The evaluation runner: routes fan out over worker processes, one libsumo each (SPEC §10).
+"""The evaluation runner: routes fan out over worker processes, one libsumo each (docs/design.md §10).
 
 Outputs in the run folder:
 
@@ -50,8 +50,9 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from harness.common.atomic import signals_held, write_atomic
+from files.atomic import signals_held, write_atomic
 from harness.runs.jobs import Job, crash_record, release_freed_memory, run_job_safely, worker_stats
+from harness.scoring.records import parse_record, record_line
 from harness.runs.provenance import OLD_RUN_FILE, RUN_FILE, check_same_run, run_identity
 
 
@@ -116,7 +117,7 @@ def read_records(path: Path) -> list[dict]:
     if path.exists():
         for line in path.read_text().splitlines():
             try:
-                rec = json.loads(line)
+                rec = parse_record(line)
             except json.JSONDecodeError:
                 continue
             if isinstance(rec, dict) and "key" in rec:
@@ -128,7 +129,7 @@ def _keep_complete_lines(path: Path, resume: bool) -> list[dict]:
     """Start a JSON-lines file afresh, or (resume) keep its complete lines; replaced
     atomically, so nothing is lost meanwhile, and appends start on a fresh line."""
     kept = read_records(path) if resume else []
-    write_atomic(path, "".join(json.dumps(r) + "\n" for r in kept))
+    write_atomic(path, "".join(record_line(r) for r in kept))
     return kept
 
 
@@ -231,7 +232,7 @@ def run_eval(jobs: list[Job], out: Path, workers: int | None, resume: bool, show
         with open(rec_path, "ab", buffering=0) as f, open(workers_path, "ab", buffering=0) as wf:
             def emit(job: Job, rec: dict, stats: dict | None) -> None:
                 with signals_held():  # the route's lines and the rewritten tables, all or none
-                    _append(f, json.dumps(rec) + "\n", rec_path, sync=True)
+                    _append(f, record_line(rec), rec_path, sync=True)
                     records.append(rec)
                     if stats is not None:
                         _append(wf, json.dumps({"key": job.key, **stats}) + "\n", workers_path)

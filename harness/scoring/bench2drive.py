@@ -1,4 +1,4 @@
-"""Bench2Drive's figures (notes leaderboard2.md §7): Success Rate, Driving Efficiency and
+"""Bench2Drive's figures (docs/design.md §9.2): Success Rate, Driving Efficiency and
 Driving Smoothness, and the per-route ``metric_info.json`` its
 ``tools/efficiency_smoothness_benchmark.py`` reads.
 
@@ -36,7 +36,7 @@ from pathlib import Path
 import numpy as np
 
 from controller.vehicle import DT
-from harness.common.atomic import write_atomic
+from files.atomic import write_atomic
 from harness.scoring.statuses import COMPLETED, PERFECT
 
 EFFICIENCY_CAP = 1000.0  # checkpoint values above this are left out [%]

@@ -1,8 +1,8 @@
 """Route-ending criteria of the CARLA Leaderboard 2.0, evaluated every tick
-(notes leaderboard2.md §2.3 and §4; constants as in the leaderboard).
+(docs/design.md §9.1; constants as in the leaderboard).
 
 Each criterion keeps its own monotone index into the 1 m dense route (window rules of
-§2.2) and answers ``update(...) -> status or None``; the first non-None ends the route.
+docs/design.md §9.1) and answers ``update(...) -> status or None``; the first non-None ends the route.
 The status texts are those of harness.scoring.statuses.
 """
 from __future__ import annotations

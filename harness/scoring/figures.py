@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
-from harness.common.atomic import write_atomic
+from files.atomic import write_atomic
 
 
 def _world(points: np.ndarray, x: float, y: float, yaw: float) -> np.ndarray:

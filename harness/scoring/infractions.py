@@ -1,4 +1,4 @@
-"""Leaderboard 2.0 infraction detection from an episode log (notes leaderboard2.md §3-§4).
+"""Leaderboard 2.0 infraction detection from an episode log (docs/design.md §9.1).
 
 Detection is a function of the per-tick log (ego pose and speed, contacts, the route's
 light states, background speed), the route's plan and the town's lanes, run once after
@@ -28,10 +28,10 @@ from controller.vehicle import LENGTH
 from harness.scoring.lanes import LaneIndex
 from harness.scoring.statuses import STATUSES, ended_by_criterion
 from harness.sim.hazard_actor import SCENARIO_END, SCENARIO_TIMEOUT
-from harness.sim.hazards import TIMEOUT_HAZARDS
 from harness.sim.plan import GlobalPlan
 from harness.sim.stop_signs import stop_history, stop_passages
 from harness.sim.world import PEDESTRIAN, STATIC, VEHICLE
+from scenarios.hazards import HAZARDS, two_ways
 from scenarios.routefile import Route
 
 KEYS = ("collisions_layout", "collisions_pedestrian", "collisions_vehicle", "red_light", "stop_infraction",
@@ -153,7 +153,7 @@ def outside_lanes(log: dict, plan: GlobalPlan, lanes: LaneIndex, spans, values: 
     wrong = (~near.junction) & (diff >= WRONG_DEG) & (diff <= 360.0 - WRONG_DEG)
     s_ego = plan.s[log["route_index"].astype(int)]
     for kind, s0, s1, params in spans:  # TwoWays scenarios switch the wrong-lane check off
-        if kind == "ParkedObstacle" and params.get("bypass") == "oncoming":
+        if two_ways(kind, params):
             wrong &= ~((s_ego >= s0) & (s_ego <= s1 + SCENARIO_END))
     fwd = np.stack([np.cos(plan.yaw), np.sin(plan.yaw)], 1)
     i, total, bad = 0, 0.0, 0.0
@@ -209,7 +209,7 @@ def scenario_timeouts(log: dict, plan: GlobalPlan, spans) -> list[str]:
     s_ego = plan.s[log["route_index"].astype(int)]
     t = log["t"]
     for kind, s0, s1, _ in spans:
-        if kind not in TIMEOUT_HAZARDS:
+        if not HAZARDS[kind].timeout:
             continue
         started = np.flatnonzero(s_ego >= s0)
         if len(started) == 0:

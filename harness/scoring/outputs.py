@@ -2,10 +2,12 @@
 
     records.csv    one row per route run: status, DS, RC, IS, every infraction count,
                    outside-lanes %, Collision/km, km driven, times, stability metrics
+                   (harness.scoring.records.CSV_FIELDS)
     summary.csv    per metric: the mean over route runs with a 95 % bootstrap interval
                    (2000 resamples of the routes, seeded: same records -> same file),
                    among them Bench2Drive's success rate [%], and the Leaderboard's
-                   per-km infraction rates
+                   per-km infraction rates with theirs; rounded as results.json rounds
+                   (rates 3 decimals, the rest 6)
     results.json   the Leaderboard 2.0 results file (``--checkpoint``), see harness.scoring.scores:
                    its records in route-run order, written as the leaderboard writes it
 """
@@ -17,13 +19,18 @@ from pathlib import Path
 
 import numpy as np
 
-from harness.common.atomic import write_atomic
+from files.atomic import write_atomic
 from harness.scoring.bench2drive import success
-from harness.scoring.records import RECORD_FIELDS, STABILITY
-from harness.scoring.scores import results, results_text
+from harness.scoring.infractions import KEYS
+from harness.scoring.records import CSV_FIELDS, STABILITY, csv_row
+from harness.scoring.scores import infraction_value, results, results_text
 
 BOOTSTRAP = 2000  # resamples
 BOOTSTRAP_SEED = 0
+SCORE_DECIMALS, RATE_DECIMALS = 6, 3  # as results.json rounds scores and per-km rates
+# the leaderboard's names of our sensor types, where it has one (its sensors_to_icons);
+# the others keep ours in results.json's "sensors" (docs/scoring.md)
+LEADERBOARD_SENSORS = {"speed": "carla_speedometer"}
 COLLISION_KEYS = ("collisions_layout", "collisions_pedestrian", "collisions_vehicle")
 
 
@@ -43,8 +50,8 @@ def _write_csv(path: Path, fieldnames, rows) -> None:
 
 
 def write_records_csv(records: list[dict], path: Path) -> None:
-    _write_csv(path, RECORD_FIELDS, ({k: (v.splitlines()[0] if isinstance(v, str) and v else v) for k, v in r.items()}
-                                     for r in _sorted(records)))
+    _write_csv(path, CSV_FIELDS, (csv_row({k: (v.splitlines()[0] if isinstance(v, str) and v else v)
+                                           for k, v in r.items()}) for r in _sorted(records)))
 
 
 def collisions_per_km(records: list[dict]) -> float:
@@ -89,15 +96,44 @@ def summary_rows(records: list[dict], result: dict) -> list[dict]:
     rng = np.random.default_rng(BOOTSTRAP_SEED)
     rows = []
     for name, stat in [("driving_score", _mean_of("ds")), ("route_completion", _mean_of("rc")),
-                       ("infraction_penalty", _mean_of("is")), ("success_rate", success_rate),
+                       ("infraction_penalty", _mean_of("is")), ("success_rate (%)", success_rate),
                        ("collisions_per_km", collisions_per_km),
                        *[(k, _mean_of(k)) for k in STABILITY]]:
         v, lo, hi = bootstrap(records, stat, rng)
-        rows.append({"metric": name, "value": v, "ci95_low": lo, "ci95_high": hi, "routes": len(records)})
-    for k, v in result["_checkpoint"]["global_record"].get("infractions", {}).items():
+        digits = RATE_DECIMALS if name == "collisions_per_km" else SCORE_DECIMALS
+        rows.append({"metric": name, "value": _round(v, digits), "ci95_low": _round(lo, digits),
+                     "ci95_high": _round(hi, digits), "routes": len(records)})
+    rates = result["_checkpoint"]["global_record"].get("infractions", {})
+    intervals = _rate_intervals(records, rng) if rates else {}
+    for k, v in rates.items():
         unit = "km" if k == "outside_route_lanes" else "per km"
-        rows.append({"metric": f"{k} ({unit})", "value": v, "ci95_low": "", "ci95_high": "", "routes": len(records)})
+        lo, hi = intervals.get(k, (math.nan, math.nan))
+        rows.append({"metric": f"{k} ({unit})", "value": v, "ci95_low": _round(lo, RATE_DECIMALS),
+                     "ci95_high": _round(hi, RATE_DECIMALS), "routes": len(records)})
     return rows
+
+
+def _round(x: float, digits: int) -> float:
+    return round(x, digits) if math.isfinite(x) else x
+
+
+def _rate_intervals(records: list[dict], rng: np.random.Generator) -> dict[str, tuple[float, float]]:
+    """2.5 % and 97.5 % of each Leaderboard per-km infraction rate (results.json's global
+    infractions: summed counts over summed km driven, at least 1 m; outside_route_lanes in
+    km, undivided) over BOOTSTRAP resamples of the routes; NaN below 2 routes."""
+    if len(records) < 2:
+        return {}
+    lb = [r["lb"] for r in records]
+    km = np.array([r["meta"]["route_length"] / 1000 * r["scores"]["score_route"] / 100 for r in lb])
+    idx = rng.integers(len(lb), size=(BOOTSTRAP, len(lb)))
+    km_drawn = np.maximum(km[idx].sum(axis=1), 0.001)
+    out = {}
+    for k in KEYS:
+        drawn = np.array([infraction_value(r, k) for r in lb], dtype=float)[idx].sum(axis=1)
+        if k != "outside_route_lanes":
+            drawn = drawn / km_drawn
+        out[k] = (float(np.percentile(drawn, 2.5)), float(np.percentile(drawn, 97.5)))
+    return out
 
 
 def write_outputs(records: list[dict], total: int, out: Path, checkpoint: Path, sensors: list[str],
@@ -105,7 +141,7 @@ def write_outputs(records: list[dict], total: int, out: Path, checkpoint: Path, 
     """Write records.csv, results.json (at ``checkpoint``) and, if asked, summary.csv."""
     write_records_csv(records, out / "records.csv")
     lb = sorted((r["lb"] for r in records), key=lambda r: r["index"])
-    result = results(lb, total, sensors, finished)
+    result = results(lb, total, [LEADERBOARD_SENSORS.get(s, s) for s in sensors], finished)
     write_atomic(checkpoint, results_text(result))  # as the leaderboard writes it; no NaN
     if summary and records:
         _write_csv(out / "summary.csv", ["metric", "value", "ci95_low", "ci95_high", "routes"],

@@ -1,5 +1,5 @@
 """Leaderboard scoring as pure functions: infraction lists -> route record -> global
-record -> results JSON (notes leaderboard2.md §5-§6). Works the same on our runs and on
+record -> results JSON (docs/design.md §9.1). Works the same on our runs and on
 a results file written by CARLA's leaderboard, because it reads only what such a file
 holds: the message lists, the route scores and the meta.
 
@@ -168,7 +168,7 @@ def rescore(record: dict, rules: str = "lb2.0") -> tuple[dict, int]:
     return out, dropped
 
 
-def _infraction_value(record: dict, key: str) -> float:
+def infraction_value(record: dict, key: str) -> float:
     """What a route adds to the global ``key`` before the per-km division: its message count,
     or for outside_route_lanes the metres of its first message in km (the leaderboard reads
     the 9th word)."""
@@ -207,7 +207,7 @@ def global_record(records: list[dict], total: int) -> dict:
     for r in records:
         km += r["meta"]["route_length"] / 1000 * r["scores"]["score_route"] / 100
         for k in KEYS:
-            infractions[k] += _infraction_value(r, k)
+            infractions[k] += infraction_value(r, k)
     km = max(km, 0.001)
     for k in KEYS:
         if k != "outside_route_lanes":  # total km outside the lanes, not per km (a leaderboard quirk)

@@ -1,4 +1,4 @@
-"""Temporal-stability metrics of a route run (SPEC §9, the paper's Table 4).
+"""Temporal-stability metrics of a route run (docs/design.md §9.3, the paper's Table 4).
 
 The paper gives no formulas; these are this project's, per 20 Hz tick t (dt = 0.05 s), over
 MOVING ticks only: the ego speed v (the log's ``v``, the speed at the end of the tick) is

@@ -1,10 +1,10 @@
 """The BEV sensor: an ego-centred raster drawn with OpenCV from the net and the actors
-(SPEC §3). The same renderer serves the closed loop and (later) the training loader.
+(docs/design.md §3). The same renderer serves the closed loop and (later) the training loader.
 
 Geometry: SIZE x SIZE pixels at RES metres per pixel (64 px x 0.75 m = 48 m square),
 ego pointing up at row EGO_ROW, column SIZE/2: 36 m ahead, 12 m behind, 24 m to each
 side. 64 px is chosen for training speed (the student must train at >= 500 samples/s on
-2 cores, SPEC §11; notes measured.md: 64x64 ~670 samples/s, 96x96 ~250).
+2 cores, docs/design.md §3, §11: 64x64 ~670 samples/s, 96x96 ~250).
 
 Channels (uint8; dynamic ones 0 or 255, static ones anti-aliased at their edges):
 
@@ -47,7 +47,7 @@ MAP_PPM = 1.0 / RES  # static map resolution [px / m]
 RED, YELLOW = 255, 128
 _TLS_LEVEL = {0: RED, 1: RED, 2: YELLOW, 3: YELLOW}  # TLS_CODES index r, R, y, Y
 
-# OpenCV on the calling thread only. A worker is one process per core (SPEC §10), and with
+# OpenCV on the calling thread only. A worker is one process per core (docs/design.md §10), and with
 # its default pool (sized by the number of cores) OpenCV splits each warpAffine with helper
 # threads that then spin (sched_yield) until the next call: about 9 % of another core per
 # worker, measured. Same pixels either way (warpAffine computes each output pixel alone;

@@ -1,5 +1,5 @@
 """Contacts between the ego and other actors: oriented-box overlap by the separating-axis
-test, our own rather than SUMO's collision detection (notes sumo-facts.md §3.2: SUMO
+test, our own rather than SUMO's collision detection (docs/design.md §3: SUMO
 misses collisions of moveToXY-driven vehicles and of vehicles with persons).
 
 Boxes are centre (x, y) [m], yaw [rad], length along the heading and width [m], world frame.

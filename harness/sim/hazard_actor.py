@@ -14,7 +14,6 @@ Positions are world frame [m]; s is route arc length [m].
 from __future__ import annotations
 
 import math
-from typing import ClassVar
 
 import libsumo
 import numpy as np
@@ -23,13 +22,14 @@ import sumolib
 from controller.vehicle import DT
 from harness.sim.plan import GlobalPlan, route_lane
 from harness.sim.world import sumo_angle
+from scenarios.hazards import HAZARDS
 from scenarios.routefile import Hazard
 
 # moveToXY for walkers: bit 1 (place exactly, off-lane too) + bit 2 (ignore permissions).
 # With keepRoute 0 or 2, SUMO 1.28 segfaulted in simulationStep when a walker was moved
 # across a crosswalk (town12_short route 29); 6 does not.
 PERSON_KEEP_ROUTE = 6
-# Scenario timeouts (notes leaderboard2.md §3.7): hazards that can block the ego get 240 s
+# Scenario timeouts (docs/design.md §9.1): hazards that can block the ego get 240 s
 # from their trigger to their own end (the ego this far past the site)
 SCENARIO_TIMEOUT = 240.0  # [s]
 SCENARIO_END = 10.0  # [m]
@@ -90,8 +90,6 @@ class HazardActor:
     site (``distance`` m further); ``t0`` the simulation time [s] it started at.
     """
 
-    has_timeout: ClassVar[bool] = False  # a Leaderboard scenario timeout (SCENARIO_TIMEOUT) applies
-
     def __init__(self, hazard: Hazard, plan: GlobalPlan, net: sumolib.net.Net, rng: np.random.Generator,
                  n: int):
         """``hazard`` is the route file's scenario, ``n`` its index in the route (actor ids
@@ -112,7 +110,7 @@ class HazardActor:
     def timeout_active(self, ego_s: float, time: float) -> bool:
         """Whether this hazard's 240 s scenario timeout is running (Leaderboard: the
         blocked check is off meanwhile): started, not passed, not yet timed out."""
-        return (self.started and self.has_timeout
+        return (self.started and HAZARDS[self.hazard.type].timeout
                 and ego_s < self.site_s + SCENARIO_END and time - self.t0 <= SCENARIO_TIMEOUT)
 
     def quiet_span(self) -> tuple[float, float] | None:

@@ -1,4 +1,4 @@
-"""Hazards in the running simulation (SPEC §2.3): each route hazard becomes an actor of
+"""Hazards in the running simulation (docs/design.md §2.3): each route hazard becomes an actor of
 its type's class (``make_hazard``; the interface is harness.sim.hazard_actor.HazardActor)
 that starts when the ego's route progress reaches its trigger point.
 
@@ -35,6 +35,7 @@ from controller.vehicle import DT
 from harness.sim.hazard_actor import HazardActor, Scripted, _add_person, _road_sides
 from harness.sim.plan import GlobalPlan, route_lane
 from harness.sim.world import PERSON_PREFIX, sumo_angle
+from scenarios.hazards import HAZARDS
 from scenarios.routefile import Hazard
 
 CURB_MARGIN = 1.2  # walkers start / end this far beyond the road edge [m]
@@ -43,7 +44,19 @@ HOLD_TIME = 3.0  # a hard-braking leader stays stopped this long [s]
 CUT_IN_SPEED = 6.0  # the cut-in vehicle drives on ahead at this speed [m/s]
 RED_HOLD = 6.0  # the switched light stays red this long after the ego could reach it [s]
 
+# hazard type (scenarios.hazards.HAZARDS) -> its actor class, filled by ``actor``
+HAZARD_ACTORS: dict[str, type[HazardActor]] = {}
 
+
+def actor(cls: type[HazardActor]) -> type[HazardActor]:
+    """Register ``cls`` as the actor of the hazard type of its name (class decorator)."""
+    if cls.__name__ not in HAZARDS:
+        raise ValueError(f"actor class {cls.__name__}: no hazard type of that name in scenarios.hazards.HAZARDS")
+    HAZARD_ACTORS[cls.__name__] = cls
+    return cls
+
+
+@actor
 class PedestrianCrossing(HazardActor):
     """Walkers cross the crosswalk ``crossing`` from the ``direction`` side."""
 
@@ -65,6 +78,7 @@ class PedestrianCrossing(HazardActor):
             self.scripted.append(Scripted(pid, p0, p1, float(p["speed"]), person=True))
 
 
+@actor
 class DynamicObjectCrossing(HazardActor):
     """A walker crosses the road at the site, perpendicular to it, from the ``direction``
     side; with ``blocker=parked_car`` a harness-only parked car stands before the site."""
@@ -90,11 +104,10 @@ class DynamicObjectCrossing(HazardActor):
         self.scripted.append(Scripted(pid, p0, p1, float(p["speed"]), person=True))
 
 
+@actor
 class ParkedObstacle(HazardActor):
     """A stopped vehicle of type ``obstacle_<variant>`` in the ego lane at the site; its
     lane is kept free of background traffic."""
-
-    has_timeout = True
 
     def __init__(self, hazard: Hazard, plan: GlobalPlan, net: sumolib.net.Net, rng: np.random.Generator,
                  n: int):
@@ -135,6 +148,7 @@ class ParkedObstacle(HazardActor):
                 libsumo.vehicle.remove(vid)
 
 
+@actor
 class HardBreakRoute(HazardActor):
     """A leader inserted ``gap`` m ahead of the ego at the trigger brakes at ``decel``
     [m/s^2] to a stop at the site, stands HOLD_TIME s, then drives on."""
@@ -202,6 +216,7 @@ class HardBreakRoute(HazardActor):
             self.brake_state = "done"
 
 
+@actor
 class ParkingCutIn(HazardActor):
     """At the trigger a vehicle pulls from the curb (``source=parking``) or the left lane
     into the ego lane before the site, then drives on ahead of the ego."""
@@ -316,10 +331,9 @@ class _JunctionFlow(HazardActor):
                                 departPos=f"{pos:.2f}", departSpeed="max")
 
 
+@actor
 class SignalizedJunction(_JunctionFlow):
     """Cross traffic, and the ego's light switched to red at the trigger."""
-
-    has_timeout = True
 
     def _start(self, ego_s: float, ego_speed: float) -> None:
         self._switch_to_red(ego_s, ego_speed)
@@ -340,23 +354,16 @@ class SignalizedJunction(_JunctionFlow):
                 return
 
 
+@actor
 class StopSignJunction(_JunctionFlow):
     """Cross traffic at a stop-sign junction."""
 
 
+@actor
 class UnprotectedLeftTurn(_JunctionFlow):
     """Oncoming traffic at the junction where the ego turns left."""
 
-    has_timeout = True
     ONCOMING = True
-
-
-# hazard type (scenarios.hazards.HAZARDS) -> its actor class
-HAZARD_ACTORS: dict[str, type[HazardActor]] = {cls.__name__: cls for cls in (
-    PedestrianCrossing, DynamicObjectCrossing, ParkedObstacle, HardBreakRoute, ParkingCutIn,
-    SignalizedJunction, StopSignJunction, UnprotectedLeftTurn)}
-# the hazard types a Leaderboard scenario timeout applies to
-TIMEOUT_HAZARDS = tuple(name for name, cls in HAZARD_ACTORS.items() if cls.has_timeout)
 
 
 def make_hazard(hazard: Hazard, plan: GlobalPlan, net: sumolib.net.Net, rng: np.random.Generator,

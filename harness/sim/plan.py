@@ -142,8 +142,8 @@ class Progress:
     """Monotone index into the dense route with the Leaderboard's passed-point rule.
 
     A point k counts as passed when (ego - point) . forward(k) > 0; each update looks at
-    points i .. i + window - 1 and moves i to the furthest passed one (notes
-    leaderboard2.md §2.2; RouteCompletionTest uses a window of 3).
+    points i .. i + window - 1 and moves i to the furthest passed one (docs/design.md
+    §9.1; RouteCompletionTest uses a window of 3).
     """
 
     def __init__(self, plan: GlobalPlan, window: int = 3):

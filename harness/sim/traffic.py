@@ -1,4 +1,4 @@
-"""Seeded background traffic and sidewalk pedestrians around a route (SPEC §2.3).
+"""Seeded background traffic and sidewalk pedestrians around a route (docs/design.md §2.3).
 
 Vehicles start on drivable edges within ``NEAR`` metres of the route, each with a random
 destination among those edges (SUMO's router finds the way); whenever one arrives a new

@@ -1,12 +1,12 @@
 """The SUMO side of an episode: one libsumo simulation, the ego mirrored into it, and a
 snapshot of every actor near the ego after each step.
 
-libsumo holds one simulation per process (notes sumo-facts.md §3.3), so a World is
+libsumo holds one simulation per process (docs/design.md §3), so a World is
 started and closed once per route inside a worker process.
 
 The ego is a real SUMO vehicle (traffic sees and yields to it) placed every step with
 ``moveToXY(keepRoute=2)`` at the pose the harness integrated, plus ``setSpeed``; speed
-mode 0 and lane-change mode 0, so SUMO never moves it by itself (SPEC §3).
+mode 0 and lane-change mode 0, so SUMO never moves it by itself (docs/design.md §3).
 
 Conventions: SUMO reports a vehicle's *front bumper* position and a heading in degrees
 clockwise from north; the snapshot converts to centre position and yaw [rad, CCW from
@@ -83,7 +83,7 @@ class World:
         vt.copy("DEFAULT_VEHTYPE", "background")
         vt.setLength("background", 4.6)
         vt.setWidth("background", 1.9)
-        # CARLA's background traffic drives at ~70 % of the limit (notes leaderboard2.md §3.5)
+        # CARLA's background traffic drives at ~70 % of the limit (docs/design.md §2.3)
         vt.setSpeedFactor("background", 0.7)
         vt.setSpeedDeviation("background", 0.05)
         vt.copy("background", "hazard")

@@ -1,17 +1,17 @@
 """The figures of ``sumo-scimm bench`` that span stages: every performance figure of
-SPEC §11, each beside its reference measured in the same run (the command in
-sumo_scimm.bench_commands prints them as a table and optionally writes them as JSON).
+docs/design.md §11, each beside its reference measured in the same run (the command in
+sumo_scimm.bench.command prints them as a table and optionally writes them as JSON).
 
-- closed loop (``harness.runs.bench``): harness step with the chosen agent against bare libsumo
+- closed loop (``closed_loop``): harness step with the chosen agent against bare libsumo
   stepping of the same traffic with the ego replayed, plus, for a student, its bare
   inference (its own checkpoint's ``predict`` on inputs recorded in the same episodes, one
   thread), and, for reading, the libsumo replay with that network run between steps and
   the ratio's floor (SUMO and the network alternating, nothing else); BEV render;
-- teacher (``scimm.bench``): batched IMM frames per second on one core against filterpy's
+- teacher (``imm``): batched IMM frames per second on one core against filterpy's
   IMMEstimator on the same sequences, and the largest difference between them;
-- student (``model.bench``): training samples per second on 2 threads, inference ms per
+- student (``student``): training samples per second on 2 threads, inference ms per
   frame at batch 1 on one thread;
-- collect (``harness.runs.bench.collect_rate``): simulated seconds per wall second of one worker
+- collect (``closed_loop.collect_rate``): simulated seconds per wall second of one worker
   recording the expert as ``sumo-scimm collect`` does;
 - with ``--eval``: wall time of a whole ``town12_short`` evaluation on 2 workers with the
   agent, and the worker memory (RSS) over it.

@@ -1,5 +1,5 @@
 """``sumo-scimm bench``: performance figures of the closed loop, each beside its reference
-measured in the same run (SPEC §11). Never a timed test: numbers to read, not to assert.
+measured in the same run (docs/design.md §11). Never a timed test: numbers to read, not to assert.
 
 - harness step: wall time per 0.05 s tick of the full loop (agent, vehicle model, SUMO
   mirroring, hazards, traffic, contacts, criteria, log) with the chosen agent;

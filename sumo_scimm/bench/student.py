@@ -1,4 +1,4 @@
-"""Student figures for ``sumo-scimm bench`` (SPEC §11): training samples/s, inference ms/frame.
+"""Student figures for ``sumo-scimm bench`` (docs/design.md §11): training samples/s, inference ms/frame.
 
 Both run the real code paths on synthetic inputs (random BEV bits, labels and teacher
 labels), so they measure the network, the loss and the batch assembly, not a dataset:
@@ -29,8 +29,8 @@ from model.loss import LossWeights
 from model.network import NetConfig, Student
 from model.train import BATCH, THREADS, make_optimizer, train_step
 
-TRAIN_REF = 500.0  # samples/s (SPEC §11)
-INFER_REF = 3.0  # ms per frame (SPEC §11)
+TRAIN_REF = 500.0  # samples/s (docs/design.md §11)
+INFER_REF = 3.0  # ms per frame (docs/design.md §11)
 
 
 def synthetic_data(n: int, rng: np.random.Generator) -> StudentData:

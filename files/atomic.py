@@ -51,13 +51,14 @@ def savez_atomic(path: Path, /, **arrays) -> None:
         np.savez_compressed(tmp, **arrays)
 
 
-def write_atomic(path: Path, content: str | bytes | Callable[[Path], None]) -> None:
+def write_atomic(path: Path, content: str | bytes | Callable[[Path], None], shared: bool = False) -> None:
     """Write ``path`` whole or not at all: ``content`` (text, bytes, or a function that
     writes the file it is given) goes to ``path.tmp``, which is renamed over ``path`` with
-    stops held. A write that fails (a full disk, a folder in the way) removes the
-    temporary file and raises (an OSError naming ``path``)."""
+    stops held. ``shared``: several processes may write ``path`` at once (the same
+    content), each through its own ``path.tmp<pid>``. A write that fails (a full disk, a
+    folder in the way) removes the temporary file and raises (an OSError naming ``path``)."""
     path = Path(path)
-    tmp = path.with_name(path.name + ".tmp")
+    tmp = path.with_name(path.name + (f".tmp{os.getpid()}" if shared else ".tmp"))
     with _replacing(path, tmp):
         if isinstance(content, str):
             tmp.write_text(content)

@@ -1,4 +1,4 @@
-"""IMM throughput for ``sumo-scimm bench`` (SPEC §11): frames per second of the batched
+"""IMM throughput for ``sumo-scimm bench`` (docs/design.md §11): frames per second of the batched
 5-mode / 5-state IMM on one core, beside filterpy's IMMEstimator on the same sequences (if
 filterpy is installed; it is a test-only dependency), and their agreement.
 
@@ -15,7 +15,7 @@ the same carried model as a KalmanFilter per mode with F = F_j C_t, B = F_j and 
 to one CPU while timing (Linux), and frames/s divide by the process CPU time, which other
 programs sharing the machine do not inflate; the wall-clock figure is printed beside it.
 
-The timing runs in a fresh Python process (``python -m scimm.bench --json``), so the figure
+The timing runs in a fresh Python process (``python -m sumo_scimm.bench.imm --json``), so the figure
 of ``sumo-scimm bench`` is the standalone one whatever that command did before it: there the
 thread counts are set only after NumPy and torch have loaded their BLAS, beside libsumo and
 torch. Timed inside the command, the figure once read 59k frames/s against 82-87k standalone.
@@ -29,7 +29,7 @@ from __future__ import annotations
 import os
 
 _ONE_THREAD = {v: "1" for v in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")}
-os.environ.update(_ONE_THREAD)  # effective if NumPy's BLAS is not loaded yet (python -m scimm.bench)
+os.environ.update(_ONE_THREAD)  # effective if NumPy's BLAS is not loaded yet (python -m sumo_scimm.bench.imm)
 
 import argparse  # noqa: E402
 import json  # noqa: E402
@@ -139,11 +139,11 @@ def run_imm_bench(batch: int = 300, frames: int = 400, filterpy_sequences: int =
 
 
 def _run_in_fresh_process(batch: int, frames: int, filterpy_sequences: int, seed: int) -> dict:
-    """run_imm_bench in ``python -m scimm.bench --json`` with one BLAS/OpenMP thread."""
+    """run_imm_bench in ``python -m sumo_scimm.bench.imm --json`` with one BLAS/OpenMP thread."""
     root = str(Path(__file__).resolve().parents[1])
     env = dict(os.environ, **_ONE_THREAD)
     env["PYTHONPATH"] = os.pathsep.join(p for p in (root, env.get("PYTHONPATH")) if p)
-    argv = [sys.executable, "-m", "scimm.bench", "--json", "--batch", str(batch), "--frames", str(frames),
+    argv = [sys.executable, "-m", "sumo_scimm.bench.imm", "--json", "--batch", str(batch), "--frames", str(frames),
             "--filterpy-sequences", str(filterpy_sequences), "--seed", str(seed)]
     done = subprocess.run(argv, env=env, cwd=root, capture_output=True, text=True)
     if done.returncode != 0:
@@ -170,8 +170,8 @@ def format_imm_bench(r: dict) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """``python -m scimm.bench [--json]``: the IMM figures, measured in this process."""
-    ap = argparse.ArgumentParser(prog="python -m scimm.bench", description=__doc__.split("\n\n")[0])
+    """``python -m sumo_scimm.bench.imm [--json]``: the IMM figures, measured in this process."""
+    ap = argparse.ArgumentParser(prog="python -m sumo_scimm.bench.imm", description=__doc__.split("\n\n")[0])
     ap.add_argument("--json", action="store_true", help="print the figures as JSON instead of a table")
     ap.add_argument("--batch", type=int, default=300, help="sequences (default 300)")
     ap.add_argument("--frames", type=int, default=400, help="frames per sequence (default 400)")

@@ -1,6 +1,5 @@
-"""``sumo-scimm bench``: every performance figure of SPEC §11 beside its reference from the
-same run (harness.runs.bench, scimm.bench, model.bench, model.benchmarks), printed as a
-table and optionally written as JSON. Figures are for reading, never asserted in a test."""
+"""``sumo-scimm bench``: every performance figure of docs/design.md §11 beside its reference from the
+same run (the modules beside this one), printed as a table and optionally written as JSON. Figures are for reading, never asserted in a test."""
 from __future__ import annotations
 
 import argparse
@@ -8,15 +7,15 @@ import json
 import math
 from pathlib import Path
 
-from harness.common.atomic import write_atomic
+from files.atomic import write_atomic
 from harness.common.errors import BadInput
 from harness.loop.agent import DEFAULT_AGENT, check_agent
-from model.benchmarks import EVAL_TARGET_S, OVERHEAD_TARGET, REPRODUCE_TARGET_S, RSS_TARGET_MB
+from sumo_scimm.bench.figures import EVAL_TARGET_S, OVERHEAD_TARGET, REPRODUCE_TARGET_S, RSS_TARGET_MB
 
 
 def _print_loop(loop: dict) -> None:
     """The closed-loop figures: the harness step against bare libsumo (+ the network)."""
-    from harness.runs.bench import format_bench
+    from sumo_scimm.bench.closed_loop import format_bench
     infer = loop.setdefault("bare_inference_ms", 0.0)  # 0 for a rule-based agent
     share = loop.setdefault("network_share", 0.0)
     loop.setdefault("harness_over_bare_plus_inference", loop["harness_over_bare"])
@@ -52,10 +51,10 @@ def _print_memory(label: str, e: dict) -> None:
 
 
 def _bench(args: argparse.Namespace) -> int:
-    from harness.runs.bench import BenchError, collect_rate, run_bench
-    from model.bench import format_student_bench, run_student_bench
-    from model.benchmarks import bare_inference, eval_figures, machine, reproduce_figure
-    from scimm.bench import format_imm_bench, run_imm_bench
+    from sumo_scimm.bench.closed_loop import BenchError, collect_rate, run_bench
+    from sumo_scimm.bench.student import format_student_bench, run_student_bench
+    from sumo_scimm.bench.figures import bare_inference, eval_figures, machine, reproduce_figure
+    from sumo_scimm.bench.imm import format_imm_bench, run_imm_bench
     if args.routes_count < 1 or args.workers < 1 or args.rounds < 1:
         raise BadInput("--routes-count, --workers and --rounds must be >= 1")
     args.agent, args.agent_config = check_agent(args.agent, args.agent_config)
@@ -111,7 +110,7 @@ def _bench(args: argparse.Namespace) -> int:
 
 def register(sub: argparse._SubParsersAction) -> None:
     """Add ``sumo-scimm bench``."""
-    bn = sub.add_parser("bench", help="performance figures beside their references (SPEC §11)")
+    bn = sub.add_parser("bench", help="performance figures beside their references (docs/design.md §11)")
     bn.add_argument("--routes", default="town12_smoke", help="route set of the per-tick figures (default town12_smoke)")
     bn.add_argument("--routes-count", type=int, default=4, help="routes of the set to run (default 4)")
     bn.add_argument("--agent", default=DEFAULT_AGENT,
@@ -124,13 +123,13 @@ def register(sub: argparse._SubParsersAction) -> None:
     bn.add_argument("--workers", type=int, default=2, help="workers of the --eval run (default 2)")
     bn.add_argument("--soak", type=int, default=0, metavar="N",
                     help="also run at least N route runs of --routes (whole passes over the set) on --workers "
-                         "and report worker memory over them (SPEC §11: --soak 500 --routes town12_short, "
+                         "and report worker memory over them (docs/design.md §11: --soak 500 --routes town12_short, "
                          "about 4 min per 100 routes with the student)")
     bn.add_argument("--reproduce", metavar="DIR",
                     help="also print the wall time a finished 'sumo-scimm reproduce --out DIR' recorded")
     bn.add_argument("--replay", metavar="DIR",
                     help="also time 'sumo-scimm replay' of the eval run DIR (its every route) with three of the "
-                         "shipped students (baseline, fixed, scimm) on --workers (SPEC §11: an expert run of "
+                         "shipped students (baseline, fixed, scimm) on --workers (docs/design.md §11: an expert run of "
                          "town12_short)")
     bn.add_argument("--json", help="also write the figures as JSON to this file")
     bn.set_defaults(func=_bench)

@@ -17,12 +17,20 @@ import csv
 import math
 from pathlib import Path
 
-from harness.scoring.report import TABLE4, fig, tables
+from harness.scoring import stability
+from harness.scoring.report import fig, tables
 
-# the paper's claims on a teacher arm against a reference: (column, label, better direction)
-CLAIMS = (("DS", "DS higher", "higher"), ("Collision/km", "Collision/km lower", "lower"),
-          *((k, f"{label.split(' [')[0]} lower", "lower") for k, label in TABLE4))
+# the paper's Table 3 claims on a teacher arm against a reference: (column, label, better direction)
+TABLE3_CLAIMS = (("DS", "DS higher", "higher"), ("Collision/km", "Collision/km lower", "lower"))
 REPRODUCED, NOT_REPRODUCED, UNDECIDED, NO_INTERVAL = "reproduced", "not reproduced", "undecided", "no interval"
+
+
+def paper_claims() -> tuple[tuple[str, str, str], ...]:
+    """The paper's claims on a teacher arm against a reference, (column, label, better
+    direction): TABLE3_CLAIMS, then every stability metric of the paper's Table 4
+    (harness.scoring.stability.METRICS, shown in TABLE4) in its better direction."""
+    table4 = tuple((m.key, f"{m.label} {m.better}", m.better) for m in stability.METRICS if m.shows == stability.TABLE4)
+    return (*TABLE3_CLAIMS, *table4)
 
 
 def verdict(low: float, high: float, better: str) -> str:
@@ -76,14 +84,15 @@ def paired_tables(runs: dict[str, list[Path]], out: Path) -> tuple[str, dict[str
 
 
 def claims(rows: dict[str, dict[str, list[dict]]], common: bool = False) -> tuple[list[dict], str]:
-    """The verdict of every paper claim (CLAIMS) for every arm against every reference, from
+    """The verdict of every paper claim (``paper_claims``) for every arm against every reference, from
     Tables 3 and 4 of ``paired_tables`` (on every route, or with ``common`` on the routes
     every run completed); CSV rows and a Markdown table whose cells read ``difference
     [interval] verdict``."""
     where = "the routes every run completed" if common else "every route"
+    family = paper_claims()
     out, lines = [], [f"### The paper's claims ({where}; paired 95 % interval of arm - reference)", "",
-                      "| arm | against | " + " | ".join(label for _, label, _ in CLAIMS) + " |",
-                      "|" + " --- |" * (len(CLAIMS) + 2)]
+                      "| arm | against | " + " | ".join(label for _, label, _ in family) + " |",
+                      "|" + " --- |" * (len(family) + 2)]
     refs = list(rows)
     for ref, stems in rows.items():
         by_arm: dict[str, dict] = {}
@@ -94,7 +103,7 @@ def claims(rows: dict[str, dict[str, list[dict]]], common: bool = False) -> tupl
             if arm == ref or arm in refs[:refs.index(ref)]:  # a reference against a later one: the reverse
                 continue
             row, cells = {"arm": arm, "against": ref}, []
-            for key, label, better in CLAIMS:
+            for key, _, better in family:
                 d, lo, hi = r[f"{key} diff"], r[f"{key} diff ci95_low"], r[f"{key} diff ci95_high"]
                 v = verdict(lo, hi, better)
                 row.update({f"{key} diff": d, f"{key} diff ci95_low": lo, f"{key} diff ci95_high": hi, key: v})

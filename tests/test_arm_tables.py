@@ -8,8 +8,8 @@ import math
 import pytest
 
 from harness.common.errors import BadInput
-from model.arm_tables import (CLAIMS, NO_INTERVAL, NOT_REPRODUCED, REPRODUCED, UNDECIDED, claims, eval_stage,
-                              hazard_ds, ranking, references, stage_table, verdict)
+from model.arm_tables import (NO_INTERVAL, NOT_REPRODUCED, REPRODUCED, UNDECIDED, claims, eval_stage,
+                              hazard_ds, paper_claims, ranking, references, stage_table, verdict)
 from model.reproduce import SECOND_SET, select_arms
 
 
@@ -35,7 +35,7 @@ def test_verdict_refuses_an_unknown_direction():
 
 
 def test_claims_are_the_papers_six_in_its_directions():
-    assert [(k, b) for k, _, b in CLAIMS] == [
+    assert [(k, b) for k, _, b in paper_claims()] == [
         ("DS", "higher"), ("Collision/km", "lower"), ("steering_jerk_moving", "lower"),
         ("longitudinal_jerk_moving", "lower"), ("curvature_variation_wps", "lower"), ("speed_variation_kmh", "lower")]
 
@@ -43,7 +43,7 @@ def test_claims_are_the_papers_six_in_its_directions():
 def _row(arm: str, diff: float, low: float, high: float) -> dict:
     """A Table 3 + 4 CSV row whose every figure has the same difference and interval."""
     row = {"arm": arm}
-    for key, _, _ in CLAIMS:
+    for key, _, _ in paper_claims():
         row.update({f"{key} diff": diff, f"{key} diff ci95_low": low, f"{key} diff ci95_high": high})
     return row
 

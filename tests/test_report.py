@@ -155,3 +155,42 @@ def test_records_without_the_new_columns_get_them_from_the_logs(tmp_path):
 def test_small_figures_keep_their_significant_digits():
     assert fig(0.000312345) == "0.0003123"
     assert fig(54.9712) == "54.97"
+
+
+def _add_column(run: Path, column: str, values: dict[str, float]) -> None:
+    """Append a column to a run's records.csv, ``values`` by route key."""
+    with open(run / "records.csv", newline="") as f:
+        rows = list(csv.DictReader(f))
+    with open(run / "records.csv", "w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=[*rows[0], column])
+        w.writeheader()
+        w.writerows({**r, column: values[r["key"]]} for r in rows)
+
+
+def test_a_new_stability_metric_is_one_registry_entry_that_reaches_table4_and_the_claims(tmp_path, monkeypatch):
+    from harness.scoring import stability as stab
+    from model.arm_tables import paper_claims, write_set_tables
+    new = stab.Metric("steer_rate_moving", lambda s: s.on_moving(np.abs(np.diff(s.steer, prepend=np.nan))),
+                      "steer rate", "1/tick", "lower", stab.TABLE4)
+    monkeypatch.setattr(stab, "METRICS", (*stab.METRICS, new))
+    # its function runs with the others: moving ticks 2 and 3 of steer 0, 0.1, 0, 0 -> (0.1 + 0) / 2
+    log = {"v": np.array([0.0, 1.0, 1.0, 1.0]), "steer": np.array([0.0, 0.1, 0.0, 0.0]),
+           "throttle": np.zeros(4), "brake": np.zeros(4), "pred_path": np.zeros((0, 20, 2)),
+           "pred_speed_wps": np.zeros((0, 10, 2))}
+    assert stability(log)["steer_rate_moving"] == pytest.approx(0.05)
+    assert paper_claims()[-1] == ("steer_rate_moving", "steer rate lower", "lower")
+    runs = {}
+    for arm, rate in (("baseline", 2.0), ("scimm", 1.0)):
+        runs[arm] = [_run(tmp_path / f"{arm}{s}", [("0_rep0", 50.0, 0, 0.3, 1.0), ("1_rep0", 60.0, 0, 0.3, 1.0)])
+                     for s in (0, 1)]
+        for s, run in enumerate(runs[arm]):
+            _add_column(run, "steer_rate_moving", {"0_rep0": rate + s, "1_rep0": rate + s})
+    text = write_report(runs, tmp_path / "report", n_boot=50)
+    assert "| arm | runs | steering jerk [1/s^2] | longitudinal jerk [1/s^2] | curvature variation [1/m] | " \
+           "speed variation [km/h] | steer rate [1/tick] |" in text
+    rows = list(csv.DictReader(open(tmp_path / "report" / "table4.csv")))
+    assert float(rows[1]["steer_rate_moving diff"]) == pytest.approx(-1.0)  # seeds 1, 2 against 2, 3
+    md, _ = write_set_tables(runs, tmp_path / "tables")
+    assert "steer rate lower |" in md.splitlines()[2]
+    claim = list(csv.DictReader(open(tmp_path / "tables" / "claims.csv")))[0]
+    assert float(claim["steer_rate_moving diff"]) == pytest.approx(-1.0)

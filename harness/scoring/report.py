@@ -33,18 +33,27 @@ from pathlib import Path
 
 import numpy as np
 
-from harness.scoring.records import STABILITY
-from harness.scoring.stability import stability
+from harness.scoring import stability as stab
 from harness.scoring.statuses import COMPLETED, PERFECT
 
 TABLE3 = (("DS", "driving score"), ("RC", "route completion [%]"), ("IS", "infraction penalty"),
           ("Collision/km", "collisions per km driven"))
-TABLE4 = (("steering_jerk_moving", "steering jerk [1/s^2]"), ("longitudinal_jerk_moving", "longitudinal jerk [1/s^2]"),
-          ("curvature_variation_wps", "curvature variation [1/m]"), ("speed_variation_kmh", "speed variation [km/h]"))
-TABLE4_OTHER = (("curvature_variation_path", "path curvature variation [1/m]"),
-                ("curvature_variation_quadratic", "quadratic curvature variation [1/m]"),
-                ("speed_variation_ms", "speed variation [m/s]"), ("standing_share", "standing share"))
-TABLE4_ALL = tuple((k, k) for k in STABILITY)  # every stability column (the CSV)
+
+
+def stability_figures(shows: str | None = None) -> tuple[tuple[str, str], ...]:
+    """(column, heading) of the stability metrics (harness.scoring.stability.METRICS) that
+    show in ``shows`` (stability.TABLE4: the main Table 4; stability.OTHER: its other
+    readings); None: every metric, headed by its column (the CSV of Table 4)."""
+    if shows is None:
+        return tuple((m.key, m.key) for m in stab.METRICS)
+    return tuple((m.key, m.heading) for m in stab.METRICS if m.shows == shows)
+
+
+def stability_columns() -> tuple[str, ...]:
+    """The records.csv columns of the stability metrics, in the registry's order."""
+    return tuple(m.key for m in stab.METRICS)
+
+
 COLLISIONS = ("collisions_layout", "collisions_pedestrian", "collisions_vehicle")
 BOOTSTRAP, BOOT_SEED = 2000, 0  # resamples; seed of the route and run draws
 
@@ -89,30 +98,31 @@ def route_rows(folder: Path) -> dict[str, dict]:
             reader = csv.DictReader(f)
             rows = list(reader)
             header = set(reader.fieldnames or ())
-        missing = [k for k in STABILITY if k not in header]
+        columns = stability_columns()
+        missing = [k for k in columns if k not in header]
         out = {}
         for r in rows:
-            stab = {k: float(r[k]) for k in STABILITY if k in header}
+            values = {k: float(r[k]) for k in columns if k in header}
             if missing:
-                stab = {**_from_log(folder, r["key"], path), **stab}
+                values = {**_from_log(folder, r["key"], path, missing[0]), **values}
             out[r["key"]] = {"DS": float(r["ds"]), "RC": float(r["rc"]), "IS": float(r["is"]),
                              "coll": sum(float(r[k]) for k in COLLISIONS), "km": float(r["km_driven"]),
-                             "status": r["status"], **stab}
+                             "status": r["status"], **values}
         return out
     except (KeyError, TypeError, ValueError, UnicodeDecodeError, csv.Error) as exc:
         raise ReportError(f"{path}: not a records.csv of 'sumo-scimm eval' ({type(exc).__name__}: {exc})") from None
 
 
-def _from_log(folder: Path, key: str, path: Path) -> dict[str, float]:
+def _from_log(folder: Path, key: str, path: Path, missing: str) -> dict[str, float]:
     """The stability metrics of route run ``key`` computed from its log (records.csv from
     before the column existed)."""
     log = folder / "logs" / f"{key}.npz"
     if not log.is_file():
-        raise ReportError(f"{path} has no column {STABILITY[0]!r} and there is no log {log} to compute it "
+        raise ReportError(f"{path} has no column {missing!r} and there is no log {log} to compute it "
                           "from: evaluate the run again with this sumo-scimm")
     try:
         with np.load(log, allow_pickle=False) as z:
-            return stability({k: z[k] for k in ("v", "steer", "throttle", "brake", "pred_path", "pred_speed_wps")})
+            return stab.stability({k: z[k] for k in ("v", "steer", "throttle", "brake", "pred_path", "pred_speed_wps")})
     except (OSError, ValueError, KeyError) as exc:
         raise ReportError(f"{log}: not a log of 'sumo-scimm eval' ({type(exc).__name__}: {exc})") from None
 
@@ -277,12 +287,12 @@ def tables(arms: dict[str, list[Path]], n_boot: int = BOOTSTRAP) -> list[tuple[s
     out = []
     for suffix, keys, where in (("", None, "every route"), ("_common", done, f"the {len(done)} routes every run completed")):
         t3 = compare(loaded, TABLE3, keys, n_boot)
-        t4 = compare(loaded, TABLE4_ALL, keys, n_boot)
-        md4 = (markdown(t4, arms, TABLE4, f"Table 4: temporal stability on moving ticks ({where})") + "\n\n"
-               + markdown(t4, arms, TABLE4_OTHER, f"Table 4, other readings ({where})"))
+        t4 = compare(loaded, stability_figures(), keys, n_boot)
+        md4 = (markdown(t4, arms, stability_figures(stab.TABLE4), f"Table 4: temporal stability on moving ticks ({where})")
+               + "\n\n" + markdown(t4, arms, stability_figures(stab.OTHER), f"Table 4, other readings ({where})"))
         out += [(f"table3{suffix}", csv_rows(t3, arms, TABLE3),
                  markdown(t3, arms, TABLE3, f"Table 3: closed-loop driving performance ({where})")),
-                (f"table4{suffix}", csv_rows(t4, arms, TABLE4_ALL), md4)]
+                (f"table4{suffix}", csv_rows(t4, arms, stability_figures()), md4)]
     return out
 
 
@@ -307,5 +317,5 @@ write_arm_report = write_report  # the name ``sumo-scimm reproduce`` calls it by
 def arm_figures(folders: list[Path], n_boot: int = BOOTSTRAP, seed: int = BOOT_SEED) -> dict[str, tuple[float, float, float]]:
     """{figure: (mean over the runs, 2.5 %, 97.5 %)} of one arm's runs (its seeds), every
     figure of Tables 3 and 4 (the two-level bootstrap of the module docstring)."""
-    result = compare({"arm": [route_rows(f) for f in folders]}, (*TABLE3, *TABLE4_ALL), None, n_boot, seed)["arm"]
+    result = compare({"arm": [route_rows(f) for f in folders]}, (*TABLE3, *stability_figures()), None, n_boot, seed)["arm"]
     return {k: (v["value"], v["low"], v["high"]) for k, v in result.items()}

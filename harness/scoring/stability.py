@@ -182,6 +182,7 @@ class RouteSignals:
 
 
 TABLE4, OTHER, CSV_ONLY = "table4", "other", "csv"  # where a metric shows (Metric.shows)
+PAPER_ARMS = ("baseline", "fixed", "scimm")  # the arms of the paper's Tables 3 and 4, in their order
 
 
 @dataclass(frozen=True)
@@ -193,7 +194,8 @@ class Metric:
     "lower" or "higher", the direction the paper calls better ("" for none); shows: TABLE4
     (the paper's Table 4: a column of the main table and one of the paper's claims), OTHER
     (Table 4's other readings) or CSV_ONLY (table4.csv only); formula and why: its row of
-    the docs table ("" keeps it out of that table)."""
+    the docs table ("" keeps it out of that table); paper: the paper's Table 4 values of its
+    baseline, Fixed-IMM and SC-IMM arms (PAPER_ARMS), None where the paper has none."""
     key: str
     compute: Callable[[RouteSignals], float]
     label: str
@@ -202,6 +204,7 @@ class Metric:
     shows: str
     formula: str = ""
     why: str = ""
+    paper: tuple[float, float, float] | None = None
 
     @property
     def heading(self) -> str:
@@ -213,18 +216,18 @@ METRICS = (
     Metric("steering_jerk_moving", lambda s: s.on_moving(second_differences(s.steer)),
            "steering jerk", "1/s^2", "lower", TABLE4,
            "mean_t \\|steer_t - 2 steer_{t-1} + steer_{t-2}\\| / dt^2, commanded steer",
-           "the paper's \"change of the control command\""),
+           "the paper's \"change of the control command\"", (19.11, 17.84, 16.13)),
     Metric("longitudinal_jerk_moving", lambda s: s.on_moving(second_differences(s.u)),
            "longitudinal jerk", "1/s^2", "lower", TABLE4,
            "the same on u = throttle - brake",
-           "one signed longitudinal command, as a brake pedal is a negative throttle"),
+           "one signed longitudinal command, as a brake pedal is a negative throttle", (44.01, 40.80, 38.96)),
     Metric("curvature_variation_wps", lambda s: s.on_moving(frame_change(menger_curvature(with_ego(s.wps)))),
            "curvature variation", "1/m", "lower", TABLE4,
            "mean_t mean_k \\|kappa_t(k) - kappa_{t-1}(k)\\|, kappa(k) = 2 ((b - a) x (c - b)) / (\\|b - a\\| "
            "\\|c - b\\| \\|c - a\\|) the signed three-point (Menger) curvature at each interior point b of the "
            "ego (0, 0) followed by the 10 predicted speed waypoints",
            "the predicted trajectory itself (where the car is to be at 0.25..2.5 s); the reading with the "
-           "paper's magnitudes"),
+           "paper's magnitudes", (0.0430, 0.0337, 0.0289)),
     Metric("curvature_variation_path", lambda s: s.on_moving(frame_change(menger_curvature(s.path))),
            "path curvature variation", "1/m", "lower", OTHER,
            "the same on the 20 predicted path points (0..19 m)",
@@ -238,7 +241,7 @@ METRICS = (
            "speed variation", "km/h", "lower", TABLE4,
            "mean_t sum_k \\|v^_t(tau_k) - v^_{t-1}(tau_k)\\|, v^(tau_k) = \\|W_k - W_{k-1}\\| / 0.25 s "
            "(W_0 the ego) the speeds of the predicted waypoints",
-           "the paper's magnitudes (3.2-4.7) match km/h"),
+           "the paper's magnitudes (3.2-4.7) match km/h", (4.662, 3.200, 3.317)),
     Metric("speed_variation_ms", lambda s: s.on_moving(s.speed_change),
            "speed variation", "m/s", "lower", OTHER,
            "the same in m/s (= km/h / 3.6)", "SI, and the first Table 4's unit"),

@@ -87,17 +87,19 @@ def references(arms: list[str]) -> list[str]:
     return refs or arms[:1]
 
 
-def paired_tables(runs: dict[str, list[Path]], out: Path) -> tuple[str, dict[str, dict[str, list[dict]]]]:
+def paired_tables(runs: dict[str, list[Path]], out: Path,
+                  seeds: dict[str, list[int]] | None = None) -> tuple[str, dict[str, dict[str, list[dict]]]]:
     """Tables 3 and 4 against every reference (module docstring) written to ``out``; returns
-    their Markdown and {reference: {table stem: CSV rows}}."""
+    their Markdown and {reference: {table stem: CSV rows}}. ``seeds``: each arm's seed index
+    of each run (default: the run's place in its list); arms are paired by it."""
     out.mkdir(parents=True, exist_ok=True)
     texts, rows = [], {}
     for i, ref in enumerate(references(list(runs))):
         ordered = {ref: runs[ref], **{a: f for a, f in runs.items() if a != ref}}
         suffix = "" if i == 0 else f"_vs_{ref}"
-        texts.append(f"## Against the {ref} (paired intervals: arm - {ref})")
+        texts.append(f"## Against the {ref} (seed-paired intervals: arm - {ref})")
         rows[ref] = {}
-        for stem, csv_rows, md in tables(ordered):
+        for stem, csv_rows, md in tables(ordered, seeds=seeds):
             _write_csv(out / f"{stem}{suffix}.csv", csv_rows)
             (out / f"{stem}{suffix}.md").write_text(md + "\n")
             texts.append(md)
@@ -188,21 +190,21 @@ def ranking(ds: dict[str, dict[str, float]]) -> str:
     return "\n".join(lines)
 
 
-def stage_table(times: dict[str, float], arms: list[str], seeds: int, main: str, second: str | None) -> str:
+def stage_table(times: dict[str, float], arms: list[str], seeds: list[int], main: str, second: str | None) -> str:
     """Stage wall times [s] as Markdown: the shared stages (collect, teachers, tables,
     figures) one a row, then one row per arm and seed with its training and its evaluation
     on the main set (``main``) and the second (``second``, None: none), then the total of
     every stage in ``times``."""
     sets = [(main, None)] + ([(second, second)] if second else [])
-    per_arm = {f"train {a} s{k}" for a in arms for k in range(seeds)}
-    per_arm |= {eval_stage(a, k, on) for a in arms for k in range(seeds) for _, on in sets}
+    per_arm = {f"train {a} s{k}" for a in arms for k in seeds}
+    per_arm |= {eval_stage(a, k, on) for a in arms for k in seeds for _, on in sets}
     lines = ["| stage | wall s |", "| --- | --- |"]
     lines += [f"| {k} | {v:.0f} |" for k, v in times.items() if k not in per_arm]
     lines += ["", "| arm | seed | train s | " + " | ".join(f"eval {label} s" for label, _ in sets) + " |",
               "|" + " --- |" * (len(sets) + 3)]
     cell = lambda name: f"{times[name]:.0f}" if name in times else "-"  # noqa: E731
     for a in arms:
-        for k in range(seeds):
+        for k in seeds:
             evals = [cell(eval_stage(a, k, on)) for _, on in sets]
             lines.append(f"| {a} | {k} | {cell(f'train {a} s{k}')} | " + " | ".join(evals) + " |")
     total = sum(times.values())
@@ -217,12 +219,14 @@ def eval_stage(arm: str, seed: int, on: str | None = None) -> str:
     return f"eval {arm} s{seed}" + (f" on {on}" if on else "")
 
 
-def write_set_tables(runs: dict[str, list[Path]], out: Path) -> tuple[str, dict[str, float]]:
+def write_set_tables(runs: dict[str, list[Path]], out: Path,
+                     seeds: dict[str, list[int]] | None = None) -> tuple[str, dict[str, float]]:
     """Every table of the module docstring for the arms' runs on one evaluation set, written
     to ``out`` (``table{3,4}[_common][_vs_control]``, ``b2d``, ``per_hazard``,
-    ``claims[_common]``, ``hazard_ds``, as .csv and .md); returns their Markdown and {arm: mean DS} (Table 3's)."""
+    ``claims[_common]``, ``hazard_ds``, as .csv and .md); returns their Markdown and {arm:
+    mean DS} (Table 3's). ``seeds``: each arm's seed index of each run (``paired_tables``)."""
     from harness.scoring.b2d_tables import b2d_tables
-    text, rows = paired_tables(runs, out)
+    text, rows = paired_tables(runs, out, seeds)
     parts = [text]
     extra = b2d_tables(runs)
     for stem, csv_rows, md in extra:

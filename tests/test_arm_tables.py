@@ -3,6 +3,7 @@ hand-made intervals, the ranking of arms on two sets, the claims table from hand
 Table 3/4 rows, DS per hazard side by side, the stage-time table, and the ``--arms`` choice."""
 from __future__ import annotations
 
+import csv
 import math
 
 import pytest
@@ -116,7 +117,7 @@ def test_stage_table_has_a_row_per_arm_and_seed_and_the_total():
     times = {"collect train": 300.0, "teacher scimm": 7.0, "train baseline s0": 400.0, "eval baseline s0": 200.0,
              eval_stage("baseline", 0, SECOND_SET): 150.0, "train scimm s0": 380.0, "eval scimm s0": 180.0,
              "fig 4": 3.0}
-    md = stage_table(times, ["baseline", "scimm"], 1, "town12_short", SECOND_SET)
+    md = stage_table(times, ["baseline", "scimm"], [0], "town12_short", SECOND_SET)
     assert "| collect train | 300 |" in md and "| fig 4 | 3 |" in md and "| train scimm s0 |" not in md
     assert "| arm | seed | train s | eval town12_short s | eval town12_second s |" in md
     assert "| baseline | 0 | 400 | 200 | 150 |" in md
@@ -140,3 +141,39 @@ def test_arms_are_chosen_in_their_fixed_order_and_an_unknown_name_is_refused():
 def test_cli_second_set_is_the_reproduce_default():
     from sumo_scimm import model_commands
     assert model_commands.SECOND_SET == SECOND_SET
+
+
+def test_seeds_are_a_count_from_0_or_a_range():
+    from model.reproduce import parse_seeds
+    assert parse_seeds("3") == range(0, 3)
+    assert parse_seeds("3-5") == range(3, 6)
+    assert parse_seeds("4-4") == range(4, 5)
+    for bad, message in (("0", "--seeds must be >= 1"), ("5-3", "ends before it starts"), ("a-b", "expected K"),
+                         ("-2", "expected K"), ("1,2", "expected K")):
+        with pytest.raises(BadInput, match=message):
+            parse_seeds(bad)
+
+
+def test_the_tables_pool_every_seed_present_and_pair_the_arms_by_seed(tmp_path):
+    """Seeds 0 and 1 run first, seed 2 added later (its scimm evaluation unfinished): the
+    tables pool seeds 0-2 of the baseline and 0-1 of scimm, paired by seed. DS of each run's two
+    routes: baseline 50, 60, 70 by seed; scimm 56, 64 (a stray folder of another arm and the
+    expert's run are not arms). Differences seed by seed: +6, +4: mean 5, sd sqrt(2), t_{0.975, 1}
+    = 12.7062 (Cauchy) -> 5 +- 12.7062 sqrt(2) / sqrt(2) = 5 +- 12.7062."""
+    from model.arm_tables import write_set_tables
+    from model.reproduce import pooled_runs
+    from tests.test_report import _run
+    runs = tmp_path / "runs"
+    for arm, dss in (("baseline", (50.0, 60.0, 70.0)), ("scimm", (56.0, 64.0))):
+        for seed, ds in enumerate(dss):
+            _run(runs / f"{arm}_s{seed}", [("0_rep0", ds, 0, 0.3, 1.0), ("1_rep0", ds, 0, 0.3, 1.0)])
+    _run(runs / "expert_s0", [("0_rep0", 90.0, 0, 0.3, 1.0)])
+    (runs / "scimm_s2").mkdir()  # an evaluation that has not finished
+    pooled, seeds = pooled_runs(runs, ("baseline", "scimm"))
+    assert seeds == {"baseline": [0, 1, 2], "scimm": [0, 1]}
+    assert pooled["scimm"] == [runs / "scimm_s0", runs / "scimm_s1"]
+    write_set_tables(pooled, tmp_path / "tables", seeds)
+    row = {r["arm"]: r for r in csv.DictReader(open(tmp_path / "tables" / "table3.csv"))}["scimm"]
+    assert float(row["DS"]) == 60.0 and row["DS seeds"] == "2"
+    assert (float(row["DS diff"]), float(row["DS diff ci95_low"]), float(row["DS diff ci95_high"])) == \
+        pytest.approx((5.0, 5 - 12.7062, 5 + 12.7062), abs=1e-3)

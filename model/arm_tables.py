@@ -1,12 +1,13 @@
 """The tables of ``sumo-scimm reproduce`` that compare its arms (model.reproduce):
 
-- Tables 3 and 4 with route-paired 95 % intervals against each reference arm (the baseline,
+- Tables 3 and 4 with seed-paired 95 % intervals against each reference arm (the baseline,
   then the loss-matched control), on every route and on the routes every run completed
   (harness.scoring.report; the files of the first reference have no suffix, the others
   ``_vs_<reference>``);
-- the paper's claims, one verdict each from the paired interval of an arm against a
-  reference (``verdict``): teacher arm higher DS, lower Collision/km, lower each of the four
-  Table 4 metrics;
+- the paper's claims (``paper_claims``: teacher arm higher DS, lower Collision/km, lower each
+  Table 4 metric of harness.scoring.stability.METRICS), one verdict each from an arm's
+  seed-paired difference from a reference and its p, Holm-corrected over the table
+  (``verdict``), with the paper's size beside ours (``size_agreement``);
 - the DS of each hazard type, the arms side by side (``hazard_ds``);
 - the arms ranked by mean DS on each evaluation set, the sets side by side (``ranking``);
 - the stage wall times, one row per stage and per arm and seed (``stage_table``).

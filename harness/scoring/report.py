@@ -234,8 +234,9 @@ def _difference(per_seed: dict, per_draw: dict, seeds: dict, name: str, base: st
     ia, ib = (np.array(x) for x in zip(*pairs))
     ref = float(per_seed[base][ib].mean())
     if name == base:
-        return {**nan, "diff": 0.0, "diff_low": 0.0, "diff_high": 0.0, "change": 0.0, "change_low": 0.0,
-                "change_high": 0.0, "seeds": len(pairs)}
+        zero = 0.0 if ref != 0 else math.nan  # no relative change from a zero baseline
+        return {**nan, "diff": 0.0, "diff_low": 0.0, "diff_high": 0.0, "change": zero, "change_low": zero,
+                "change_high": zero, "seeds": len(pairs)}
     if len(pairs) > 1:
         d = per_seed[name][ia] - per_seed[base][ib]
         diff, lo, hi, p = t_interval(d)

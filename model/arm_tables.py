@@ -1,12 +1,13 @@
 """The tables of ``sumo-scimm reproduce`` that compare its arms (model.reproduce):
 
-- Tables 3 and 4 with route-paired 95 % intervals against each reference arm (the baseline,
+- Tables 3 and 4 with seed-paired 95 % intervals against each reference arm (the baseline,
   then the loss-matched control), on every route and on the routes every run completed
   (harness.scoring.report; the files of the first reference have no suffix, the others
   ``_vs_<reference>``);
-- the paper's claims, one verdict each from the paired interval of an arm against a
-  reference (``verdict``): teacher arm higher DS, lower Collision/km, lower each of the four
-  Table 4 metrics;
+- the paper's claims (``paper_claims``: teacher arm higher DS, lower Collision/km, lower each
+  Table 4 metric of harness.scoring.stability.METRICS), one verdict each from an arm's
+  seed-paired difference from a reference and its p, Holm-corrected over the table
+  (``verdict``), with the paper's size beside ours (``size_agreement``);
 - the DS of each hazard type, the arms side by side (``hazard_ds``);
 - the arms ranked by mean DS on each evaluation set, the sets side by side (``ranking``);
 - the stage wall times, one row per stage and per arm and seed (``stage_table``).
@@ -17,30 +18,60 @@ import csv
 import math
 from pathlib import Path
 
-from harness.scoring.report import TABLE4, fig, tables
+from harness.scoring import stability
+from harness.scoring.paired import ALPHA, holm
+from harness.scoring.report import fig, tables
 
-# the paper's claims on a teacher arm against a reference: (column, label, better direction)
-CLAIMS = (("DS", "DS higher", "higher"), ("Collision/km", "Collision/km lower", "lower"),
-          *((k, f"{label.split(' [')[0]} lower", "lower") for k, label in TABLE4))
+# the paper's Table 3 claims on a teacher arm against a reference: (column, label, better
+# direction, the paper's values of its arms stability.PAPER_ARMS)
+TABLE3_CLAIMS = (("DS", "DS higher", "higher", (58.70, 71.82, 75.11)),
+                 ("Collision/km", "Collision/km lower", "lower", (5.055, 2.042, 1.908)))
 REPRODUCED, NOT_REPRODUCED, UNDECIDED, NO_INTERVAL = "reproduced", "not reproduced", "undecided", "no interval"
+AGREES, DIFFERS = "agrees", "differs"
 
 
-def verdict(low: float, high: float, better: str) -> str:
-    """A paper claim's verdict from the 95 % interval [low, high] of an arm's paired
-    difference from a reference (arm - reference): ``reproduced`` if the interval excludes 0
-    on the side ``better`` ("higher" or "lower") says, ``not reproduced`` if it excludes 0
-    on the other side, ``undecided`` if it holds 0, ``no interval`` if a bound is not finite."""
+def paper_claims() -> tuple[tuple[str, str, str, tuple | None], ...]:
+    """The paper's claims on a teacher arm against a reference, (column, label, better
+    direction, the paper's values of stability.PAPER_ARMS or None): TABLE3_CLAIMS, then every
+    stability metric of the paper's Table 4 (harness.scoring.stability.METRICS, shown in
+    TABLE4) in its better direction."""
+    table4 = tuple((m.key, f"{m.label} {m.better}", m.better, m.paper)
+                   for m in stability.METRICS if m.shows == stability.TABLE4)
+    return (*TABLE3_CLAIMS, *table4)
+
+
+def verdict(diff: float, p_holm: float, better: str, alpha: float = ALPHA) -> str:
+    """A paper claim's verdict from an arm's difference from a reference (arm - reference)
+    and its Holm-adjusted p over the family of claims: ``reproduced`` if p_holm < alpha and
+    the difference lies on the side ``better`` ("higher" or "lower") says, ``not reproduced``
+    if p_holm < alpha on the other side, ``undecided`` otherwise, ``no interval`` if the
+    difference or p is not finite."""
     if better not in ("higher", "lower"):
         raise ValueError(f"better must be 'higher' or 'lower', got {better!r}")
-    if not (math.isfinite(low) and math.isfinite(high)):
+    if not (math.isfinite(diff) and math.isfinite(p_holm)):
         return NO_INTERVAL
-    sign = 1.0 if better == "higher" else -1.0
-    lo, hi = sorted((sign * low, sign * high))
-    if lo > 0:
-        return REPRODUCED
-    if hi < 0:
-        return NOT_REPRODUCED
-    return UNDECIDED
+    if p_holm >= alpha or diff == 0:
+        return UNDECIDED
+    return REPRODUCED if (diff > 0) == (better == "higher") else NOT_REPRODUCED
+
+
+def paper_change(paper: tuple | None, arm: str, ref: str) -> float:
+    """The paper's relative change of a figure, 100 (x_arm - x_ref) / |x_ref| [%], from its
+    values of stability.PAPER_ARMS; NaN if the paper has no such pair or value."""
+    arms = stability.PAPER_ARMS
+    if paper is None or arm not in arms or ref not in arms:
+        return math.nan
+    x, x_ref = paper[arms.index(arm)], paper[arms.index(ref)]
+    return 100.0 * (x - x_ref) / abs(x_ref)
+
+
+def size_agreement(paper: float, low: float, high: float) -> str:
+    """Whether the paper's relative change ``paper`` [%] lies in our 95 % interval [low,
+    high] of the relative change (AGREES, DIFFERS), "" where either is not finite. The
+    relative change is compared because the absolute scales of CARLA and our SUMO town differ."""
+    if not all(math.isfinite(v) for v in (paper, low, high)):
+        return ""
+    return AGREES if low <= paper <= high else DIFFERS
 
 
 def _write_csv(path: Path, rows: list[dict]) -> None:
@@ -57,17 +88,19 @@ def references(arms: list[str]) -> list[str]:
     return refs or arms[:1]
 
 
-def paired_tables(runs: dict[str, list[Path]], out: Path) -> tuple[str, dict[str, dict[str, list[dict]]]]:
+def paired_tables(runs: dict[str, list[Path]], out: Path,
+                  seeds: dict[str, list[int]] | None = None) -> tuple[str, dict[str, dict[str, list[dict]]]]:
     """Tables 3 and 4 against every reference (module docstring) written to ``out``; returns
-    their Markdown and {reference: {table stem: CSV rows}}."""
+    their Markdown and {reference: {table stem: CSV rows}}. ``seeds``: each arm's seed index
+    of each run (default: the run's place in its list); arms are paired by it."""
     out.mkdir(parents=True, exist_ok=True)
     texts, rows = [], {}
     for i, ref in enumerate(references(list(runs))):
         ordered = {ref: runs[ref], **{a: f for a, f in runs.items() if a != ref}}
         suffix = "" if i == 0 else f"_vs_{ref}"
-        texts.append(f"## Against the {ref} (paired intervals: arm - {ref})")
+        texts.append(f"## Against the {ref} (seed-paired intervals: arm - {ref})")
         rows[ref] = {}
-        for stem, csv_rows, md in tables(ordered):
+        for stem, csv_rows, md in tables(ordered, seeds=seeds):
             _write_csv(out / f"{stem}{suffix}.csv", csv_rows)
             (out / f"{stem}{suffix}.md").write_text(md + "\n")
             texts.append(md)
@@ -76,33 +109,52 @@ def paired_tables(runs: dict[str, list[Path]], out: Path) -> tuple[str, dict[str
 
 
 def claims(rows: dict[str, dict[str, list[dict]]], common: bool = False) -> tuple[list[dict], str]:
-    """The verdict of every paper claim (CLAIMS) for every arm against every reference, from
-    Tables 3 and 4 of ``paired_tables`` (on every route, or with ``common`` on the routes
-    every run completed); CSV rows and a Markdown table whose cells read ``difference
-    [interval] verdict``."""
+    """The verdict of every paper claim (``paper_claims``) for every arm against every
+    reference, from Tables 3 and 4 of ``paired_tables`` (on every route, or with ``common``
+    on the routes every run completed). The family of the Holm correction is every claim of
+    the table (arms x references x claims). CSV rows and a Markdown table whose cells read
+    ``difference [95 % interval], MDE, Holm p: verdict``, then the paper's relative change and
+    whether it lies in our interval of the relative change where the paper has the pair."""
     where = "the routes every run completed" if common else "every route"
-    out, lines = [], [f"### The paper's claims ({where}; paired 95 % interval of arm - reference)", "",
-                      "| arm | against | " + " | ".join(label for _, label, _ in CLAIMS) + " |",
-                      "|" + " --- |" * (len(CLAIMS) + 2)]
-    refs = list(rows)
+    family = paper_claims()
+    refs, found = list(rows), []
     for ref, stems in rows.items():
         by_arm: dict[str, dict] = {}
         for stem in ("table3_common", "table4_common") if common else ("table3", "table4"):
             for r in stems[stem]:
                 by_arm.setdefault(r["arm"], {}).update(r)
-        for arm, r in by_arm.items():
-            if arm == ref or arm in refs[:refs.index(ref)]:  # a reference against a later one: the reverse
-                continue
-            row, cells = {"arm": arm, "against": ref}, []
-            for key, label, better in CLAIMS:
-                d, lo, hi = r[f"{key} diff"], r[f"{key} diff ci95_low"], r[f"{key} diff ci95_high"]
-                v = verdict(lo, hi, better)
-                row.update({f"{key} diff": d, f"{key} diff ci95_low": lo, f"{key} diff ci95_high": hi, key: v})
-                cells.append(f"{d:+.4g} [{fig(lo)}, {fig(hi)}] {v}" if math.isfinite(d) else v)
-            out.append(row)
-            lines.append(f"| {arm} | {ref} | " + " | ".join(cells) + " |")
-    lines += ["", f"{REPRODUCED}: the interval excludes 0 in the paper's direction; {NOT_REPRODUCED}: it "
-              f"excludes 0 against it; {UNDECIDED}: it holds 0."]
+        found += [(arm, ref, r) for arm, r in by_arm.items()
+                  if arm != ref and arm not in refs[:refs.index(ref)]]  # a reference against a later one: the reverse
+    adjusted = iter(holm([float(r[f"{key} diff p"]) for _, _, r in found for key, *_ in family]))
+    out, lines = [], [f"### The paper's claims ({where}; arm - reference, seed-paired 95 % interval, MDE at 80 % "
+                      "power, Holm-adjusted p)", "",
+                      "| arm | against | " + " | ".join(label for _, label, *_ in family) + " |",
+                      "|" + " --- |" * (len(family) + 2)]
+    for arm, ref, r in found:
+        row, cells = {"arm": arm, "against": ref}, []
+        for key, _, better, paper in family:
+            d, lo, hi, m = (float(r[f"{key} {c}"]) for c in ("diff", "diff ci95_low", "diff ci95_high", "diff mde80"))
+            p, p_holm = float(r[f"{key} diff p"]), next(adjusted)
+            v = verdict(d, p_holm, better)
+            pc = paper_change(paper, arm, ref)
+            cl, ch = float(r[f"{key} change % ci95_low"]), float(r[f"{key} change % ci95_high"])
+            size = size_agreement(pc, cl, ch)
+            row.update({f"{key} diff": d, f"{key} diff ci95_low": lo, f"{key} diff ci95_high": hi, f"{key} mde80": m,
+                        f"{key} seeds": r[f"{key} seeds"], f"{key} p": p, f"{key} p holm": p_holm, key: v,
+                        f"{key} paper change %": pc, f"{key} size": size})
+            cell = v if not math.isfinite(d) else (
+                f"{d:+.4g} [{fig(lo)}, {fig(hi)}]" + (f", MDE {fig(m)}" if math.isfinite(m) else "")
+                + f", p {p_holm:.2g}: {v}")
+            if size:
+                cell += f"; paper {pc:+.1f} %, ours [{cl:+.1f}, {ch:+.1f}] %: size {size}"
+            cells.append(cell)
+        out.append(row)
+        lines.append(f"| {arm} | {ref} | " + " | ".join(cells) + " |")
+    lines += ["", f"Family: the {len(found) * len(family)} claims of this table, Holm's correction at alpha "
+              f"{ALPHA} (p: the Holm-adjusted p). {REPRODUCED}: adjusted p < {ALPHA} in the paper's direction; "
+              f"{NOT_REPRODUCED}: adjusted p < {ALPHA} against it; {UNDECIDED}: neither. Size: the paper's "
+              f"relative change against our 95 % interval of it ({AGREES}: inside). MDE: the smallest "
+              "difference these seeds detect with 80 % power (none with one seed: route-to-route interval only)."]
     return out, "\n".join(lines)
 
 
@@ -139,21 +191,21 @@ def ranking(ds: dict[str, dict[str, float]]) -> str:
     return "\n".join(lines)
 
 
-def stage_table(times: dict[str, float], arms: list[str], seeds: int, main: str, second: str | None) -> str:
+def stage_table(times: dict[str, float], arms: list[str], seeds: list[int], main: str, second: str | None) -> str:
     """Stage wall times [s] as Markdown: the shared stages (collect, teachers, tables,
     figures) one a row, then one row per arm and seed with its training and its evaluation
     on the main set (``main``) and the second (``second``, None: none), then the total of
     every stage in ``times``."""
     sets = [(main, None)] + ([(second, second)] if second else [])
-    per_arm = {f"train {a} s{k}" for a in arms for k in range(seeds)}
-    per_arm |= {eval_stage(a, k, on) for a in arms for k in range(seeds) for _, on in sets}
+    per_arm = {f"train {a} s{k}" for a in arms for k in seeds}
+    per_arm |= {eval_stage(a, k, on) for a in arms for k in seeds for _, on in sets}
     lines = ["| stage | wall s |", "| --- | --- |"]
     lines += [f"| {k} | {v:.0f} |" for k, v in times.items() if k not in per_arm]
     lines += ["", "| arm | seed | train s | " + " | ".join(f"eval {label} s" for label, _ in sets) + " |",
               "|" + " --- |" * (len(sets) + 3)]
     cell = lambda name: f"{times[name]:.0f}" if name in times else "-"  # noqa: E731
     for a in arms:
-        for k in range(seeds):
+        for k in seeds:
             evals = [cell(eval_stage(a, k, on)) for _, on in sets]
             lines.append(f"| {a} | {k} | {cell(f'train {a} s{k}')} | " + " | ".join(evals) + " |")
     total = sum(times.values())
@@ -168,12 +220,14 @@ def eval_stage(arm: str, seed: int, on: str | None = None) -> str:
     return f"eval {arm} s{seed}" + (f" on {on}" if on else "")
 
 
-def write_set_tables(runs: dict[str, list[Path]], out: Path) -> tuple[str, dict[str, float]]:
+def write_set_tables(runs: dict[str, list[Path]], out: Path,
+                     seeds: dict[str, list[int]] | None = None) -> tuple[str, dict[str, float]]:
     """Every table of the module docstring for the arms' runs on one evaluation set, written
     to ``out`` (``table{3,4}[_common][_vs_control]``, ``b2d``, ``per_hazard``,
-    ``claims[_common]``, ``hazard_ds``, as .csv and .md); returns their Markdown and {arm: mean DS} (Table 3's)."""
+    ``claims[_common]``, ``hazard_ds``, as .csv and .md); returns their Markdown and {arm:
+    mean DS} (Table 3's). ``seeds``: each arm's seed index of each run (``paired_tables``)."""
     from harness.scoring.b2d_tables import b2d_tables
-    text, rows = paired_tables(runs, out)
+    text, rows = paired_tables(runs, out, seeds)
     parts = [text]
     extra = b2d_tables(runs)
     for stem, csv_rows, md in extra:

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import json
 import logging
+import re
 import shutil
 import time
 from collections.abc import Callable
@@ -52,6 +53,42 @@ def select_arms(text: str | None) -> tuple[str, ...]:
     return tuple(a for a in names if a in asked)
 
 
+def parse_seeds(text: str) -> range:
+    """The seeds of ``--seeds``: ``K`` is seeds 0..K-1 (K >= 1), ``A-B`` seeds A to B (0 <= A
+    <= B); BadInput otherwise."""
+    m = re.fullmatch(r"\s*(\d+)\s*(?:-\s*(\d+)\s*)?", text)
+    if not m:
+        raise BadInput(f"--seeds: expected K (seeds 0..K-1) or A-B (seeds A to B), got {text!r} (e.g. --seeds 3-5)")
+    first, last = int(m[1]), m[2]
+    if last is None:
+        if first < 1:
+            raise BadInput(f"--seeds must be >= 1 (got {first})")
+        return range(first)
+    if int(last) < first:
+        raise BadInput(f"--seeds {text!r}: the range ends before it starts (e.g. --seeds {last}-{first})")
+    return range(first, int(last) + 1)
+
+
+def pooled_runs(folder: Path, arms: tuple[str, ...]) -> tuple[dict[str, list[Path]], dict[str, list[int]]]:
+    """Every finished evaluation of every arm in ``folder`` (``<arm>_s<seed>``, seeds of every
+    earlier part of the experiment included), by seed: ({arm: run folders}, {arm: seeds}),
+    each in seed order. An unfinished run folder is left out, with a warning."""
+    from harness.scoring.report import ReportError, check_run
+    runs: dict[str, list[Path]] = {a: [] for a in arms}
+    seeds: dict[str, list[int]] = {a: [] for a in arms}
+    found = sorted((int(m[2]), m[1], d) for d in folder.glob("*_s*")
+                   if (m := re.fullmatch(r"(.+)_s(\d+)", d.name)) and m[1] in arms)
+    for seed, arm, run in found:
+        try:
+            check_run(run)
+        except ReportError as exc:
+            log.warning("left out of the tables: %s", exc)
+            continue
+        runs[arm].append(run)
+        seeds[arm].append(seed)
+    return {a: r for a, r in runs.items() if r}, {a: k for a, k in seeds.items() if k}
+
+
 class Stages:
     """Runs named stages in order and records their wall times [s] in ``stages.json``."""
 
@@ -75,13 +112,17 @@ class Stages:
         return result
 
 
-def reproduce(out: Path, seeds: int, repetitions: int, epochs: int | None, backend: Backend = Backend(),
+def reproduce(out: Path, seeds: int | range, repetitions: int, epochs: int | None, backend: Backend = Backend(),
               sets: tuple[str, str, str] = ("train", "val", EVAL_SET), arms: tuple[str, ...] | None = None,
               second: str | None = SECOND_SET) -> str:
-    """Run (or finish) the experiment in ``out``; returns the Markdown summary. ``backend``:
-    where the collect and eval stages run; ``sets``: the training, validation and evaluation
-    route sets (the paper's by default); ``arms``: the arms to run (names of ARMS, default
-    all); ``second``: a second evaluation set every student is evaluated on too (None: none)."""
+    """Run (or finish) the experiment in ``out``; returns the Markdown summary. ``seeds``:
+    the seeds to run (an int K: 0..K-1); the tables pool every seed whose evaluations are in
+    ``out``, so an experiment can be run in parts (``--seeds 0-2``, then ``--seeds 3-5``).
+    ``backend``: where the collect and eval stages run; ``sets``: the training, validation
+    and evaluation route sets (the paper's by default); ``arms``: the arms to run (names of
+    ARMS, default all); ``second``: a second evaluation set every student is evaluated on too
+    (None: none)."""
+    seeds = range(seeds) if isinstance(seeds, int) else seeds
     from model.train import TrainConfig
     from scimm.stage import dataset_episodes, make_teachers
     from scimm.teacher import METHODS as TEACHERS, is_complete
@@ -102,20 +143,20 @@ def reproduce(out: Path, seeds: int, repetitions: int, epochs: int | None, backe
             st.run(f"teacher {method}", f"teacher --data {train_dir} --method {method}",
                    lambda method=method: make_teachers(train_dir, episodes, (method,)))
     label2 = None if second is None else Path(second).stem
-    runs: dict[str, list[Path]] = {arm: [] for arm in arms}
-    runs2: dict[str, list[Path]] = {arm: [] for arm in arms}
-    replays = []
-    for seed in range(seeds):
+    for seed in seeds:
         for arm in arms:
             ckpt = _train(st, out, arm, teacher[arm], seed, epochs, train_dir, val_dir)
-            runs[arm].append(_eval(st, ckpt, sets[2], out / "runs" / f"{arm}_s{seed}", arm, seed, None, backend))
+            _eval(st, ckpt, sets[2], out / "runs" / f"{arm}_s{seed}", arm, seed, None, backend)
             if second is not None:
-                runs2[arm].append(_eval(st, ckpt, second, out / "runs" / label2 / f"{arm}_s{seed}", arm, seed,
-                                        label2, backend))
+                _eval(st, ckpt, second, out / "runs" / label2 / f"{arm}_s{seed}", arm, seed, label2, backend)
         if len(arms) > 1:
-            replays.append(f"### Seed {seed}\n\n" + _replay(st, out, arms, seed, sets[2], backend))
-    return _tables_and_summary(out, st, seeds, train_dir, episodes, runs,
-                               runs2 if second is not None else None, sets[2], label2, replays)
+            _replay(st, out, arms, seed, sets[2], backend)
+    pooled = pooled_runs(out / "runs", arms)
+    pooled2 = pooled_runs(out / "runs" / label2, arms) if second is not None else None
+    every = sorted({k for ks in pooled[1].values() for k in ks})
+    replays = [f"### Seed {k}\n\n" + (out / "replay" / f"s{k}" / "table.md").read_text()
+               for k in every if len(arms) > 1 and (out / "replay" / f"s{k}" / "table.md").is_file()]
+    return _tables_and_summary(out, st, every, train_dir, episodes, pooled, pooled2, sets[2], label2, replays)
 
 
 def _collect(st: Stages, sets: tuple[str, str, str], train_dir: Path, val_dir: Path, repetitions: int,
@@ -177,11 +218,12 @@ def _replay(st: Stages, out: Path, arms: tuple[str, ...], seed: int, route_set: 
     return (rdir / "table.md").read_text()
 
 
-def _tables_and_summary(out: Path, st: Stages, seeds: int, train_dir: Path, episodes, runs: dict[str, list[Path]],
-                        runs2: dict[str, list[Path]] | None, main: str, label2: str | None,
-                        replays: list[str]) -> str:
-    """Table 2, every arm table of both sets (model.arm_tables), the ranking, the figures
-    and ``OUT/README.md``; returns its text."""
+def _tables_and_summary(out: Path, st: Stages, seeds: list[int], train_dir: Path, episodes,
+                        pooled: tuple[dict[str, list[Path]], dict[str, list[int]]],
+                        pooled2: tuple[dict[str, list[Path]], dict[str, list[int]]] | None, main: str,
+                        label2: str | None, replays: list[str]) -> str:
+    """Table 2, every arm table of both sets (model.arm_tables) from the runs of every seed
+    present (``pooled_runs``), the ranking, the figures and ``OUT/README.md``; returns its text."""
     from model.arm_tables import ranking, write_set_tables
     from scimm.stage import write_tables
     tables = out / "tables"
@@ -189,11 +231,12 @@ def _tables_and_summary(out: Path, st: Stages, seeds: int, train_dir: Path, epis
     if not (train_dir / "teacher" / "table2.csv").is_file():
         st.run("table 2", f"teacher --data {train_dir} --method all", lambda: write_tables(train_dir, episodes))
     shutil.copy(train_dir / "teacher" / "table2.csv", tables / "table2.csv")
-    text, ds = write_set_tables(runs, tables)
+    runs = pooled[0]
+    text, ds = write_set_tables(runs, tables, pooled[1])
     parts = [f"## Tables 3-4 on {main}", "", text]
-    if runs2 is not None:
+    if pooled2 is not None:
         label = label2 if label2 != main else f"{label2} (second evaluation)"
-        text2, ds2 = write_set_tables(runs2, tables / str(label2))
+        text2, ds2 = write_set_tables(pooled2[0], tables / str(label2), pooled2[1])
         rank = ranking({main: ds, label: ds2})
         (tables / "ranking.md").write_text(rank + "\n")
         parts += ["", f"## Tables 3-4 on the second set, {label}", "", text2, "", rank]
@@ -205,9 +248,9 @@ def _tables_and_summary(out: Path, st: Stages, seeds: int, train_dir: Path, epis
     return text
 
 
-def _figures(out: Path, train_dir: Path, runs: dict[str, list[Path]], seeds: int, st: Stages) -> list[str]:
+def _figures(out: Path, train_dir: Path, runs: dict[str, list[Path]], seeds: list[int], st: Stages) -> list[str]:
     """Fig. 4 on the first episode with an obstacle bypass (Avoidance and Recovery show
-    there), Fig. 5 on the route where the seed-0 reference arm's (the first arm's) path
+    there), Fig. 5 on the route where the reference arm's (the first arm's) first seed's path
     curvature varied most, against SC-IMM (or the last arm), the loss curves of every seed."""
     from harness.scoring.figures import waypoint_overlay
     from scimm.plot import plot_posterior
@@ -225,18 +268,21 @@ def _figures(out: Path, train_dir: Path, runs: dict[str, list[Path]], seeds: int
         fig5 = waypoint_overlay({first: runs[first][0], other: runs[other][0]}, key, out / "fig5_waypoint_overlay.png")
         figs.append(f"![Fig. 5, route {key}]({fig5.name})")
     from model.curves import plot_loss_curves
-    for seed in range(seeds):
-        made = plot_loss_curves({arm: out / "models" / f"{arm}_s{seed}" for arm in runs},
+    for seed in seeds:
+        models = {arm: out / "models" / f"{arm}_s{seed}" for arm in runs}
+        made = plot_loss_curves({arm: m for arm, m in models.items() if m.is_dir()},
                                 out / f"loss_curves_seed{seed}.png")
         figs.append(f"![Loss curves, seed {seed}]({Path(made).name})")
     return figs
 
 
-def _summary(out: Path, seeds: int, times: dict[str, float], arm_tables: str, figs: list[str], arms: list[str],
-             main: str, second: str | None) -> str:
+def _summary(out: Path, seeds: list[int], times: dict[str, float], arm_tables: str, figs: list[str],
+             arms: list[str], main: str, second: str | None) -> str:
     from model.arm_tables import stage_table
     t2 = pd.read_csv(out / "tables" / "table2.csv")
-    lines = [f"# sumo-scimm reproduce ({seeds} seed{'s' if seeds > 1 else ''}; arms {', '.join(arms)})", "",
+    named = f"seed {seeds[0]}" if len(seeds) == 1 else f"seeds {', '.join(map(str, seeds))}"
+    lines = [f"# sumo-scimm reproduce ({len(seeds)} seed{'s' if len(seeds) > 1 else ''}: {named}; "
+             f"arms {', '.join(arms)})", "",
              "## Table 2: teacher signals (training set)", "", _markdown(t2), "",
              arm_tables, "", "## Figures", "", *figs, "", "## Stage wall times [s]", "",
              stage_table(times, arms, seeds, main, second), ""]

@@ -66,9 +66,10 @@ def _curves(args: argparse.Namespace) -> int:
 
 
 def _reproduce(args: argparse.Namespace) -> int:
-    from model.reproduce import reproduce, select_arms
+    from model.reproduce import parse_seeds, reproduce, select_arms
     from scenarios import UnknownSet, resolve_set
-    for name in ("seeds", "workers", "repetitions"):
+    seeds = parse_seeds(args.seeds)
+    for name in ("workers", "repetitions"):
         if getattr(args, name) < 1:
             raise BadInput(f"--{name} must be >= 1 (got {getattr(args, name)})")
     if args.epochs is not None and args.epochs < 1:
@@ -83,7 +84,7 @@ def _reproduce(args: argparse.Namespace) -> int:
             resolve_set(name)
         except UnknownSet as exc:
             raise BadInput(str(exc)) from None
-    print(reproduce(Path(args.out), args.seeds, args.repetitions, args.epochs, backend, sets, arms, second))
+    print(reproduce(Path(args.out), seeds, args.repetitions, args.epochs, backend, sets, arms, second))
     return 0
 
 
@@ -130,7 +131,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                        description="Collect -> teachers -> train baseline/control/fixed/scimm/smoother per seed -> "
                        f"eval on {EVAL_SET} and {SECOND_SET} -> Tables 2-4 against the baseline and the control, "
                        "Fig. 4-5. Resumes: finished stages are skipped.")
-    r.add_argument("--seeds", type=int, default=1, help="training/evaluation seeds per arm (default 1)")
+    r.add_argument("--seeds", default="1", help="training/evaluation seeds per arm: K for seeds 0..K-1, or A-B "
+                   "for seeds A to B, added to the seeds already in --out; the tables pool every seed present "
+                   "(default 1)")
     r.add_argument("--workers", type=int, default=os.cpu_count() or 1, help="simulation processes (default: cores)")
     r.add_argument("--repetitions", type=int, default=1,
                    help="expert drives of each training route (default 1; 2 gives > 100k frames)")

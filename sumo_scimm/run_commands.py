@@ -203,10 +203,11 @@ def register(sub: argparse._SubParsersAction) -> None:
     sc.add_argument("--out", help="write the rescored JSON here (default: print it)")
     sc.set_defaults(func=_score)
 
-    rp = sub.add_parser("report", help="the paper's Tables 3 and 4 for several arms, with paired intervals")
+    rp = sub.add_parser("report", help="the paper's Tables 3 and 4 for several arms, with seed-paired intervals")
     rp.add_argument("runs", nargs="+", metavar="ARM",
                     help="run folder of 'sumo-scimm eval', or NAME=DIR[,DIR...] for an arm of several runs "
-                         "(seeds); the first arm is the baseline")
+                         "(seeds, in seed order: the i-th folder of every arm is paired with the i-th of the "
+                         "others); the first arm is the baseline")
     rp.add_argument("--out", default="report", help="folder for the tables as .csv and .md: table3, table4 "
                     "(and _common), b2d, per_hazard (default report)")
     rp.set_defaults(func=_report)

@@ -46,25 +46,28 @@ def test_mean_over_seeds_interval_and_change_against_the_baseline(tmp_path):
     assert f["DS"][0] == pytest.approx(55.0)
     assert f["Collision/km"][0] == pytest.approx(1 / 0.6)
     assert f["steering_jerk_moving"][0] == pytest.approx(3.0)
-    # any resample of seeds and routes averages values between the smallest and largest route
-    assert 40.0 <= f["DS"][1] <= 55.0 <= f["DS"][2] <= 70.0
+    # two seeds: 55 +- t_{0.975, 1} sd / sqrt(2), sd = sqrt(50), t_{0.975, 1} = tan(0.475 pi) = 12.7062
+    # (the t distribution with 1 degree of freedom is Cauchy's): 55 +- 63.531
+    assert f["DS"][1:] == pytest.approx((55 - 63.531, 55 + 63.531), abs=1e-3)
     # one seed whose routes agree: the interval collapses to the value
     g = arm_figures([s0], n_boot=200)
     assert g["DS"] == pytest.approx((66.0, 66.0, 66.0))
     text = write_report({"baseline": [b0, b1], "scimm": [s0]}, tmp_path / "tables", n_boot=200)
     rows = list(csv.DictReader(open(tmp_path / "tables" / "table3.csv")))
-    # change as the paper computes it: 100 (66 - 55) / 55 = +20 %; steering jerk 100 (1 - 3) / 3
-    assert float(rows[1]["DS change %"]) == pytest.approx(20.0)
-    assert float(rows[1]["DS diff"]) == pytest.approx(11.0)
+    # scimm has seed 0 only: it is paired with the baseline's seed 0 (DS 50), route-paired;
+    # change as the paper computes it: 100 (66 - 50) / 50 = +32 %; steering jerk 100 (1 - 3) / 3
+    assert float(rows[1]["DS change %"]) == pytest.approx(32.0)
+    assert float(rows[1]["DS diff"]) == pytest.approx(16.0)
+    assert rows[1]["DS seeds"] == "1" and rows[1]["DS diff mde80"] == "nan"
     rows4 = list(csv.DictReader(open(tmp_path / "tables" / "table4.csv")))
     assert float(rows4[1]["steering_jerk_moving change %"]) == pytest.approx(-200 / 3)
-    assert "(+20.0 % [" in text
+    assert "(+32.0 % [" in text
     for stem in ("table3", "table4", "table3_common", "table4_common"):
         assert (tmp_path / "tables" / f"{stem}.md").is_file()
     # figures keep 4 significant digits: the baseline's DS reads 55, its steering jerk 3
     assert "| baseline | 2 | 55 [" in text
     assert "| scimm | 1 | 66 [66, 66] |" in text
-    assert "| scimm | +11 [" in text
+    assert "| scimm | 1 (one seed: route-to-route interval only) | +16 [" in text
 
 
 def test_a_route_paired_difference_has_no_spread_when_every_route_moves_alike(tmp_path):
@@ -85,17 +88,30 @@ def test_a_route_paired_difference_has_no_spread_when_every_route_moves_alike(tm
     assert 100 * 5 / 80 <= res["b"]["DS"]["change_low"] <= res["b"]["DS"]["change"] <= res["b"]["DS"]["change_high"] <= 25
 
 
-def test_seed_level_resampling_spreads_the_difference_over_the_arm_seeds(tmp_path):
+def test_arms_are_paired_by_seed_and_the_interval_is_the_t_interval_of_the_seed_differences(tmp_path):
     routes = [("0_rep0", 50.0, 0, 0.3, 1.0), ("1_rep0", 50.0, 0, 0.3, 1.0)]
-    base = _run(tmp_path / "base", routes)
-    s0 = _run(tmp_path / "s0", [(k, 60.0, c, km, sj) for k, _, c, km, sj in routes])
-    s1 = _run(tmp_path / "s1", [(k, 40.0, c, km, sj) for k, _, c, km, sj in routes])
-    res = compare({"base": [route_rows(base)], "arm": [route_rows(s0), route_rows(s1)]}, [("DS", "")], n_boot=400)
+
+    def seed(name: str, ds: float) -> dict:
+        return route_rows(_run(tmp_path / name, [(k, ds, c, km, sj) for k, _, c, km, sj in routes]))
+
+    res = compare({"base": [seed("b0", 50.0), seed("b1", 50.0)], "arm": [seed("a0", 60.0), seed("a1", 40.0)]},
+                  [("DS", "")], n_boot=50)
     d = res["arm"]["DS"]
-    # seeds 60 and 40 mean 50: no difference on average, but a draw of two seeds gives
-    # 60 + 60, 60 + 40 or 40 + 40: differences +10, 0, -10, so the interval is [-10, +10]
-    assert d["diff"] == pytest.approx(0.0)
-    assert (d["diff_low"], d["diff_high"]) == pytest.approx((-10.0, 10.0))
+    # per-seed differences +10 and -10: mean 0, sd sqrt(200), se 10; t_{0.975, 1} = tan(0.475 pi)
+    # = 12.7062 (1 degree of freedom: Cauchy), t_{0.8, 1} = tan(0.3 pi) = 1.37638; t = 0 -> p = 1
+    assert (d["diff"], d["diff_low"], d["diff_high"]) == pytest.approx((0.0, -127.062, 127.062), abs=1e-3)
+    assert (d["p"], d["seeds"]) == (pytest.approx(1.0), 2)
+    assert d["mde"] == pytest.approx((12.7062 + 1.37638) * 10, abs=1e-3)
+    # a seed effect both arms share (seed 1 is 20 points up for both) cancels in the pairs
+    res = compare({"base": [seed("c0", 50.0), seed("c1", 70.0)], "arm": [seed("e0", 55.0), seed("e1", 75.0)]},
+                  [("DS", "")], n_boot=50)
+    d = res["arm"]["DS"]
+    assert (d["diff"], d["diff_low"], d["diff_high"], d["p"], d["mde"]) == pytest.approx((5, 5, 5, 0, 0))
+    assert d["change"] == pytest.approx(100 * 5 / 60)
+    # seeds given by name pair the runs whatever their order in the list
+    res = compare({"base": [seed("f0", 50.0), seed("f1", 70.0)], "arm": [seed("g1", 75.0), seed("g0", 55.0)]},
+                  [("DS", "")], n_boot=50, seeds={"base": [0, 1], "arm": [1, 0]})
+    assert res["arm"]["DS"]["diff_high"] == pytest.approx(5.0)
 
 
 def test_the_common_routes_table_keeps_the_routes_every_run_completed(tmp_path):
@@ -155,3 +171,42 @@ def test_records_without_the_new_columns_get_them_from_the_logs(tmp_path):
 def test_small_figures_keep_their_significant_digits():
     assert fig(0.000312345) == "0.0003123"
     assert fig(54.9712) == "54.97"
+
+
+def _add_column(run: Path, column: str, values: dict[str, float]) -> None:
+    """Append a column to a run's records.csv, ``values`` by route key."""
+    with open(run / "records.csv", newline="") as f:
+        rows = list(csv.DictReader(f))
+    with open(run / "records.csv", "w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=[*rows[0], column])
+        w.writeheader()
+        w.writerows({**r, column: values[r["key"]]} for r in rows)
+
+
+def test_a_new_stability_metric_is_one_registry_entry_that_reaches_table4_and_the_claims(tmp_path, monkeypatch):
+    from harness.scoring import stability as stab
+    from model.arm_tables import paper_claims, write_set_tables
+    new = stab.Metric("steer_rate_moving", lambda s: s.on_moving(np.abs(np.diff(s.steer, prepend=np.nan))),
+                      "steer rate", "1/tick", "lower", stab.TABLE4)
+    monkeypatch.setattr(stab, "METRICS", (*stab.METRICS, new))
+    # its function runs with the others: moving ticks 2 and 3 of steer 0, 0.1, 0, 0 -> (0.1 + 0) / 2
+    log = {"v": np.array([0.0, 1.0, 1.0, 1.0]), "steer": np.array([0.0, 0.1, 0.0, 0.0]),
+           "throttle": np.zeros(4), "brake": np.zeros(4), "pred_path": np.zeros((0, 20, 2)),
+           "pred_speed_wps": np.zeros((0, 10, 2))}
+    assert stability(log)["steer_rate_moving"] == pytest.approx(0.05)
+    assert paper_claims()[-1] == ("steer_rate_moving", "steer rate lower", "lower", None)
+    runs = {}
+    for arm, rate in (("baseline", 2.0), ("scimm", 1.0)):
+        runs[arm] = [_run(tmp_path / f"{arm}{s}", [("0_rep0", 50.0, 0, 0.3, 1.0), ("1_rep0", 60.0, 0, 0.3, 1.0)])
+                     for s in (0, 1)]
+        for s, run in enumerate(runs[arm]):
+            _add_column(run, "steer_rate_moving", {"0_rep0": rate + s, "1_rep0": rate + s})
+    text = write_report(runs, tmp_path / "report", n_boot=50)
+    assert "| arm | runs | steering jerk [1/s^2] | longitudinal jerk [1/s^2] | curvature variation [1/m] | " \
+           "speed variation [km/h] | steer rate [1/tick] |" in text
+    rows = list(csv.DictReader(open(tmp_path / "report" / "table4.csv")))
+    assert float(rows[1]["steer_rate_moving diff"]) == pytest.approx(-1.0)  # seeds 1, 2 against 2, 3
+    md, _ = write_set_tables(runs, tmp_path / "tables")
+    assert "steer rate lower |" in md.splitlines()[2]
+    claim = list(csv.DictReader(open(tmp_path / "tables" / "claims.csv")))[0]
+    assert float(claim["steer_rate_moving diff"]) == pytest.approx(-1.0)

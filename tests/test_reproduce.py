@@ -1,7 +1,8 @@
 """``sumo-scimm reproduce`` end to end on the four town12_smoke routes (collect, the three
 teachers, three students for one epoch, their closed-loop evaluations in real libsumo on the
 evaluation set and on a second set, Tables 2-4 against both references, the claims, the
-ranking and the figures), its resume, and its refusals of bad input."""
+ranking and the figures), its resume, a later part adding a seed (``--seeds 1-1``) whose
+tables pool both seeds, and its refusals of bad input."""
 from __future__ import annotations
 
 import csv
@@ -67,6 +68,14 @@ def test_reproduce_runs_every_stage_and_resumes_without_redoing_them(tmp_path, c
     assert "== eval scimm s0 on town12_smoke" in log
     assert "== train" not in log
     assert "== replay" not in log, "a finished replay is not redone"
+    # a later part adds seed 1 of two arms to the same folder: the tables pool seeds 0 and 1
+    assert main(["reproduce", "--seeds", "1-1", "--workers", "2", "--epochs", "1", "--out", str(out), *SMOKE,
+                 "--arms", "baseline,scimm", "--second-routes", "none"]) == 0
+    assert (out / "models" / "scimm_s1" / "student.pt").is_file()
+    assert not (out / "models" / "scimm_s2").exists() and not (out / "models" / "control_s1").exists()
+    rows = {r["arm"]: r for r in csv.DictReader(open(out / "tables" / "table3.csv"))}
+    assert (rows["baseline"]["runs"], rows["scimm"]["runs"], rows["scimm"]["DS seeds"]) == ("2", "2", "2")
+    assert "(2 seeds: seeds 0, 1; arms baseline, scimm)" in (out / "README.md").read_text()
 
 
 @pytest.mark.parametrize("extra, message", [

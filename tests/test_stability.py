@@ -214,3 +214,13 @@ def test_every_stability_metric_is_a_record_column():
     out = stability({"v": np.ones(3), "steer": np.zeros(3), "throttle": np.zeros(3), "brake": np.zeros(3),
                      "pred_path": np.zeros((0, 20, 2)), "pred_speed_wps": np.zeros((0, 10, 2))})
     assert tuple(out) == STABILITY
+
+
+def test_the_docs_table_of_the_metrics_is_the_registrys():
+    """docs/scoring.md shows the table ``docs_table`` makes from METRICS, row for row."""
+    from pathlib import Path
+
+    from harness.scoring.stability import METRICS, docs_table
+    table = docs_table()
+    assert table in (Path(__file__).parents[1] / "docs" / "scoring.md").read_text()
+    assert len(table.splitlines()) == 2 + sum(bool(m.formula) for m in METRICS)

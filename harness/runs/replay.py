@@ -46,8 +46,8 @@ from harness.loop.agent import check_agent, load_agent, split_output, validate_s
 from harness.loop.episode import sensor_inputs
 from harness.loop.scene_log import has_scene, scene_at
 from harness.scoring.records import STABILITY
-from harness.scoring.report import TABLE4, TABLE4_OTHER, compare, markdown
-from harness.scoring.stability import moving_ticks, stability
+from harness.scoring.report import compare, markdown, stability_figures
+from harness.scoring.stability import OTHER, TABLE4, moving_ticks, stability
 
 LOG_KEYS = ("v", "steer", "throttle", "brake", "pred_path", "pred_speed_wps")
 COLUMNS = ("key", "route_id", "agent", "ticks", "moving_ticks", "message", *STABILITY)
@@ -273,12 +273,14 @@ def replay_table(rows: list[dict], agents: list[str], out: Path, n_boot: int = 2
     ``out/table.csv`` and ``table.md``; returns the Markdown."""
     from harness.scoring.report import csv_rows
     arms = {a: [{r["key"]: r for r in rows if r["agent"] == a}] for a in agents}
-    figures = (*TABLE4, *TABLE4_OTHER[:3])
+    main = stability_figures(TABLE4)
+    other = tuple(f for f in stability_figures(OTHER) if f[0] != "standing_share")  # the reference's, for all
+    figures = (*main, *other)
     res = compare(arms, figures, n_boot=n_boot)
     ticks = sum(r["ticks"] for r in rows if r["agent"] == agents[0])
     moving = sum(r["moving_ticks"] for r in rows if r["agent"] == agents[0])
-    md = (markdown(res, arms, TABLE4, "Replay: output stability on the reference run's inputs (moving ticks)")
-          + "\n\n" + markdown(res, arms, TABLE4_OTHER[:3], "Replay, other readings")
+    md = (markdown(res, arms, main, "Replay: output stability on the reference run's inputs (moving ticks)")
+          + "\n\n" + markdown(res, arms, other, "Replay, other readings")
           + f"\n\n{len(arms[agents[0]][0])} routes, {ticks} ticks of which {moving} moving.")
     table = csv_rows(res, arms, figures)
 

@@ -15,16 +15,8 @@ A record is written by ``harness.runs.runner`` and read by ``harness.scoring.out
     length, duration_game, duration_system, steps
                                         route length [m], simulated and wall time [s] (the
                                         Leaderboard's names), ticks
-    <stability>                         the metrics of harness.scoring.stability (STABILITY):
-      steering_jerk_moving, longitudinal_jerk_moving      [1/s^2], moving ticks
-      curvature_variation_wps, curvature_variation_path   [1/m], three-point curvature of the
-                                                          speed waypoints / the path points
-      curvature_variation_quadratic                       [1/m], quadratic fit at s = 0
-      speed_variation_kmh, speed_variation_ms             [km/h], [m/s]
-      standing_share                                      share of ticks at <= 0.1 m/s
-      steering_jerk, longitudinal_jerk, curvature_variation, speed_variation
-                                                          the first Table 4's readings over
-                                                          every tick, standing ones included
+    <stability>                         one column per metric of harness.scoring.stability.METRICS,
+                                        in its order (STABILITY; docs/scoring.md has the table)
     seed, message                       the route run's seed; the failure message, if any
 
 records.jsonl, one strict JSON line per route run (``record_line``: an undefined figure is
@@ -40,9 +32,9 @@ import json
 import math
 
 from harness.scoring.infractions import KEYS
-from harness.scoring.stability import ALL_TICK_METRICS, MOVING_METRICS
+from harness.scoring.stability import METRICS
 
-STABILITY = (*MOVING_METRICS, *ALL_TICK_METRICS)
+STABILITY = tuple(m.key for m in METRICS)
 COUNT_KEYS = tuple(k for k in KEYS if k != "outside_route_lanes")
 RECORD_FIELDS = ("key", "route_id", "repetition", "town", "status", "ds", "rc", "is", *COUNT_KEYS,
                  "outside_lanes_pct", "collisions_per_km", "km_driven", "length", "game_time", "wall_time",

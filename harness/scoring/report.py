@@ -1,18 +1,22 @@
 """``sumo-scimm report``: the paper's Table 3 (DS, RC, IS, Collision/km) and Table 4 (the
 stability metrics of harness.scoring.stability) for several arms, as CSV and Markdown.
 
-An arm is one run folder of ``sumo-scimm eval`` or several (its seeds: ``report
+An arm is one run folder of ``sumo-scimm eval`` or several (its seeds, in seed order: ``report
 baseline=runs/b_s0,runs/b_s1 scimm=runs/s_s0,runs/s_s1``; a bare folder is an arm of one
-run named after the folder). The first arm is the baseline. For each figure:
+run named after the folder). The i-th folder of every arm is seed index i, and arms are
+paired by seed index (a seed fixes a student's initialisation and data order in every arm).
+The first arm is the baseline. For each figure (of a run: over its routes; Collision/km:
+summed collisions over summed km):
 
-- each arm's value: the mean over its runs of the figure over the routes (Collision/km:
-  summed collisions over summed km), with a 95 % percentile interval from a two-level
-  bootstrap: resample the runs (seeds), then the routes, the same routes for every run of
-  a draw; with one run, the bootstrap over routes;
-- each arm's difference from the baseline, ``x - x_baseline``, and its relative change,
-  ``100 (x - x_baseline) / |x_baseline|`` % (the paper's), with a PAIRED bootstrap interval:
-  every draw resamples the routes once for all arms (route-paired) and each arm's runs on
-  their own (seed-level);
+- each arm's value: the mean over its runs, with a 95 % interval: Student t over the runs'
+  figures with two or more runs, the percentile bootstrap over routes with one;
+- each arm's difference from the baseline and its relative change, ``100 (x - x_baseline) /
+  |x_baseline|`` % (the paper's), over the n seeds both arms have: with n >= 2 the mean of
+  the per-seed differences with its Student t interval (n - 1 degrees of freedom), its
+  two-sided p and the minimum detectable effect at 80 % power (harness.scoring.paired; the
+  change's interval is the difference's over the baseline's mean on those seeds); with one
+  seed, the route-paired bootstrap of that seed's two runs (every draw resamples the routes
+  once for both: "one seed: route-to-route interval only") and its bootstrap p;
 - the same tables again on the routes that every compared run completed (status Perfect or
   Completed), so arms are compared where all of them drove the whole route.
 
@@ -33,20 +37,38 @@ from pathlib import Path
 
 import numpy as np
 
-from harness.scoring.records import STABILITY
-from harness.scoring.stability import stability
+from harness.scoring import stability as stab
+from harness.scoring.paired import bootstrap_p, mde, t_interval
 from harness.scoring.statuses import COMPLETED, PERFECT
 
 TABLE3 = (("DS", "driving score"), ("RC", "route completion [%]"), ("IS", "infraction penalty"),
           ("Collision/km", "collisions per km driven"))
-TABLE4 = (("steering_jerk_moving", "steering jerk [1/s^2]"), ("longitudinal_jerk_moving", "longitudinal jerk [1/s^2]"),
-          ("curvature_variation_wps", "curvature variation [1/m]"), ("speed_variation_kmh", "speed variation [km/h]"))
-TABLE4_OTHER = (("curvature_variation_path", "path curvature variation [1/m]"),
-                ("curvature_variation_quadratic", "quadratic curvature variation [1/m]"),
-                ("speed_variation_ms", "speed variation [m/s]"), ("standing_share", "standing share"))
-TABLE4_ALL = tuple((k, k) for k in STABILITY)  # every stability column (the CSV)
+
+
+def stability_figures(shows: str | None = None) -> tuple[tuple[str, str], ...]:
+    """(column, heading) of the stability metrics (harness.scoring.stability.METRICS) that
+    show in ``shows`` (stability.TABLE4: the main Table 4; stability.OTHER: its other
+    readings); None: every metric, headed by its column (the CSV of Table 4)."""
+    if shows is None:
+        return tuple((m.key, m.key) for m in stab.METRICS)
+    return tuple((m.key, m.heading) for m in stab.METRICS if m.shows == shows)
+
+
+def stability_columns() -> tuple[str, ...]:
+    """The records.csv columns of the stability metrics, in the registry's order."""
+    return tuple(m.key for m in stab.METRICS)
+
+
 COLLISIONS = ("collisions_layout", "collisions_pedestrian", "collisions_vehicle")
 BOOTSTRAP, BOOT_SEED = 2000, 0  # resamples; seed of the route and run draws
+
+
+ONE_SEED = "one seed: route-to-route interval only"
+ARM_INTERVAL = ("Each arm: the mean over its runs (seeds) of the figure over the routes, with a 95 % interval: "
+                "Student t over the runs' figures with two or more seeds, the bootstrap over routes with one.")
+DIFF_INTERVAL = ("95 % interval from the per-seed differences (arm - reference on the same seed index), Student t "
+                 "with n - 1 degrees of freedom over the n seeds both arms have; with one seed, the route-paired "
+                 f"bootstrap ({ONE_SEED}).")
 
 
 class ReportError(ValueError):
@@ -89,30 +111,31 @@ def route_rows(folder: Path) -> dict[str, dict]:
             reader = csv.DictReader(f)
             rows = list(reader)
             header = set(reader.fieldnames or ())
-        missing = [k for k in STABILITY if k not in header]
+        columns = stability_columns()
+        missing = [k for k in columns if k not in header]
         out = {}
         for r in rows:
-            stab = {k: float(r[k]) for k in STABILITY if k in header}
+            values = {k: float(r[k]) for k in columns if k in header}
             if missing:
-                stab = {**_from_log(folder, r["key"], path), **stab}
+                values = {**_from_log(folder, r["key"], path, missing[0]), **values}
             out[r["key"]] = {"DS": float(r["ds"]), "RC": float(r["rc"]), "IS": float(r["is"]),
                              "coll": sum(float(r[k]) for k in COLLISIONS), "km": float(r["km_driven"]),
-                             "status": r["status"], **stab}
+                             "status": r["status"], **values}
         return out
     except (KeyError, TypeError, ValueError, UnicodeDecodeError, csv.Error) as exc:
         raise ReportError(f"{path}: not a records.csv of 'sumo-scimm eval' ({type(exc).__name__}: {exc})") from None
 
 
-def _from_log(folder: Path, key: str, path: Path) -> dict[str, float]:
+def _from_log(folder: Path, key: str, path: Path, missing: str) -> dict[str, float]:
     """The stability metrics of route run ``key`` computed from its log (records.csv from
     before the column existed)."""
     log = folder / "logs" / f"{key}.npz"
     if not log.is_file():
-        raise ReportError(f"{path} has no column {STABILITY[0]!r} and there is no log {log} to compute it "
+        raise ReportError(f"{path} has no column {missing!r} and there is no log {log} to compute it "
                           "from: evaluate the run again with this sumo-scimm")
     try:
         with np.load(log, allow_pickle=False) as z:
-            return stability({k: z[k] for k in ("v", "steer", "throttle", "brake", "pred_path", "pred_speed_wps")})
+            return stab.stability({k: z[k] for k in ("v", "steer", "throttle", "brake", "pred_path", "pred_speed_wps")})
     except (OSError, ValueError, KeyError) as exc:
         raise ReportError(f"{log}: not a log of 'sumo-scimm eval' ({type(exc).__name__}: {exc})") from None
 
@@ -152,14 +175,21 @@ def _stat(vals: np.ndarray, figure: str, routes: np.ndarray) -> np.ndarray:
 
 
 def compare(arms: dict[str, list[dict[str, dict]]], figures, keys: list[str] | None = None,
-            n_boot: int = BOOTSTRAP, seed: int = BOOT_SEED) -> dict[str, dict[str, dict]]:
+            n_boot: int = BOOTSTRAP, seed: int = BOOT_SEED,
+            seeds: dict[str, list] | None = None) -> dict[str, dict[str, dict]]:
     """{arm: {figure: {"value", "low", "high", "diff", "diff_low", "diff_high", "change",
-    "change_low", "change_high", "routes"}}} for arms given as lists of route rows (one
-    dict per run, module docstring); the first arm is the baseline (its differences are 0).
-    ``keys``: the routes to use (default: those in every run)."""
+    "change_low", "change_high", "p", "mde", "seeds", "routes"}}} for arms given as lists of
+    route rows (one dict per run, module docstring); the first arm is the baseline (its
+    differences are 0, its p and mde NaN). ``keys``: the routes to use (default: those in
+    every run). ``seeds``: each arm's seed index of each run (default: the run's place in
+    its list); an arm is paired with the baseline on the seeds both have (``seeds``: how
+    many): two or more, the seed-paired t interval, p and minimum detectable effect
+    (harness.scoring.paired); one, the route-paired bootstrap of that seed's two runs (one
+    seed: route-to-route interval only; mde NaN)."""
     runs = [r for rs in arms.values() for r in rs]
     common = set.intersection(*(set(r) for r in runs))
     keys = sorted(common if keys is None else common & set(keys))
+    seeds = {name: list(seeds[name]) if seeds else list(range(len(rs))) for name, rs in arms.items()}
     out: dict[str, dict[str, dict]] = {name: {} for name in arms}
     for f_index, (figure, _) in enumerate(figures):
         use = [k for k in keys if figure == "Collision/km" or all(math.isfinite(r[k][figure]) for r in runs)]
@@ -167,31 +197,60 @@ def compare(arms: dict[str, list[dict[str, dict]]], figures, keys: list[str] | N
             out[name][figure] = {"routes": len(use)}
         if not use:
             for name in arms:
-                out[name][figure].update(dict.fromkeys(("value", "low", "high", "diff", "diff_low", "diff_high",
-                                                        "change", "change_low", "change_high"), math.nan))
+                out[name][figure].update(dict.fromkeys(FIELDS, math.nan), seeds=0)
             continue
         rng = np.random.default_rng([seed, f_index])
         routes = rng.integers(0, len(use), size=(n_boot, len(use)))  # one route draw for every arm
         everything = np.arange(len(use))[None]
-        point, draws = {}, {}
+        per_seed, per_draw, draws = {}, {}, {}
         for name, rs in arms.items():
             vals = _values(rs, use, figure)
-            point[name] = float(_stat(vals, figure, everything)[:, 0].mean())
-            per_run = _stat(vals, figure, routes)  # (S, B)
+            per_seed[name] = _stat(vals, figure, everything)[:, 0]  # (S,) each run over every route
+            per_draw[name] = _stat(vals, figure, routes)  # (S, B)
             picks = rng.integers(0, len(rs), size=(n_boot, len(rs)))  # the arm's runs, resampled per draw
-            draws[name] = per_run[picks, np.arange(n_boot)[:, None]].mean(axis=1)  # (B,)
+            draws[name] = per_draw[name][picks, np.arange(n_boot)[:, None]].mean(axis=1)  # (B,)
         base = next(iter(arms))
         for name in arms:
-            d = draws[name] - draws[base]
-            with np.errstate(divide="ignore", invalid="ignore"):
-                c = 100.0 * d / np.abs(draws[base])
-            diff = point[name] - point[base]
-            out[name][figure].update(
-                value=point[name], low=_pct(draws[name], 2.5), high=_pct(draws[name], 97.5), diff=diff,
-                diff_low=_pct(d, 2.5), diff_high=_pct(d, 97.5),
-                change=100.0 * diff / abs(point[base]) if point[base] != 0 else math.nan,
-                change_low=_pct(c, 2.5), change_high=_pct(c, 97.5))
+            value = float(per_seed[name].mean())
+            if len(per_seed[name]) > 1:
+                _, low, high, _ = t_interval(per_seed[name])
+            else:
+                low, high = _pct(draws[name], 2.5), _pct(draws[name], 97.5)
+            out[name][figure].update(value=value, low=low, high=high,
+                                     **_difference(per_seed, per_draw, seeds, name, base))
     return out
+
+
+FIELDS = ("value", "low", "high", "diff", "diff_low", "diff_high", "change", "change_low", "change_high", "p", "mde")
+
+
+def _difference(per_seed: dict, per_draw: dict, seeds: dict, name: str, base: str) -> dict:
+    """The difference fields of arm ``name`` against ``base`` (``compare``) from each arm's
+    per-seed values (S,) and per-route-draw values (S, B)."""
+    pairs = [(i, seeds[base].index(s)) for i, s in enumerate(seeds[name]) if s in seeds[base]]
+    nan = dict.fromkeys(("diff", "diff_low", "diff_high", "change", "change_low", "change_high", "p", "mde"), math.nan)
+    if not pairs:
+        return {**nan, "seeds": 0}
+    ia, ib = (np.array(x) for x in zip(*pairs))
+    ref = float(per_seed[base][ib].mean())
+    if name == base:
+        zero = 0.0 if ref != 0 else math.nan  # no relative change from a zero baseline
+        return {**nan, "diff": 0.0, "diff_low": 0.0, "diff_high": 0.0, "change": zero, "change_low": zero,
+                "change_high": zero, "seeds": len(pairs)}
+    if len(pairs) > 1:
+        d = per_seed[name][ia] - per_seed[base][ib]
+        diff, lo, hi, p = t_interval(d)
+        scale = 100.0 / abs(ref) if ref != 0 else math.nan
+        return {"diff": diff, "diff_low": lo, "diff_high": hi, "change": diff * scale, "change_low": lo * scale,
+                "change_high": hi * scale, "p": p, "mde": mde(d), "seeds": len(pairs)}
+    d = per_draw[name][ia[0]] - per_draw[base][ib[0]]  # (B,) one seed: route-paired draws
+    with np.errstate(divide="ignore", invalid="ignore"):
+        c = 100.0 * d / np.abs(per_draw[base][ib[0]])
+    diff = float(per_seed[name][ia[0]] - per_seed[base][ib[0]])
+    return {"diff": diff, "diff_low": _pct(d, 2.5), "diff_high": _pct(d, 97.5),
+            "change": 100.0 * diff / abs(ref) if ref != 0 else math.nan,
+            "change_low": _pct(c, 2.5), "change_high": _pct(c, 97.5), "p": bootstrap_p(d), "mde": math.nan,
+            "seeds": 1}
 
 
 def _pct(x: np.ndarray, q: float) -> float:
@@ -226,6 +285,7 @@ def csv_rows(result: dict, arms: dict, figures) -> list[dict]:
                         f"{key} diff": f["diff"], f"{key} diff ci95_low": f["diff_low"],
                         f"{key} diff ci95_high": f["diff_high"], f"{key} change %": f["change"],
                         f"{key} change % ci95_low": f["change_low"], f"{key} change % ci95_high": f["change_high"],
+                        f"{key} diff p": f["p"], f"{key} diff mde80": f["mde"], f"{key} seeds": f["seeds"],
                         f"{key} routes": f["routes"]})
         rows.append(row)
     return rows
@@ -241,18 +301,22 @@ def markdown(result: dict, arms: dict, figures, title: str) -> str:
         cells = [f"{fig(result[name][k]['value'])} {_interval(result[name][k]['low'], result[name][k]['high'])}"
                  if math.isfinite(result[name][k]["value"]) else "-" for k, _ in figures]
         lines.append(f"| {name} | {len(arms[name])} | " + " | ".join(cells) + " |")
+    lines += ["", ARM_INTERVAL]
     if len(names) > 1:
-        lines += ["", f"Difference from {names[0]} (paired bootstrap, 95 %), and the relative change:", "",
-                  f"| arm | {head} |", "|" + " --- |" * (len(figures) + 1)]
+        lines += ["", f"Difference from {names[0]}, its relative change and, with two or more seeds, the minimum "
+                  f"detectable effect (MDE) at 80 % power: {DIFF_INTERVAL}", "",
+                  f"| arm | seeds paired | {head} |", "|" + " --- |" * (len(figures) + 2)]
         for name in names[1:]:
             cells = []
             for k, _ in figures:
                 f = result[name][k]
                 change = f" ({f['change']:+.1f} % {_interval(f['change_low'], f['change_high'])})" \
                     if math.isfinite(f["change"]) else ""
-                cells.append(f"{f['diff']:+.4g} {_interval(f['diff_low'], f['diff_high'])}{change}"
+                size = f", MDE {fig(f['mde'])}" if math.isfinite(f["mde"]) else ""
+                cells.append(f"{f['diff']:+.4g} {_interval(f['diff_low'], f['diff_high'])}{change}{size}"
                              if math.isfinite(f["diff"]) else "-")
-            lines.append(f"| {name} | " + " | ".join(cells) + " |")
+            n = max(result[name][k]["seeds"] for k, _ in figures)
+            lines.append(f"| {name} | {n}{' (' + ONE_SEED + ')' if n == 1 else ''} | " + " | ".join(cells) + " |")
     counts = sorted({result[names[0]][k]["routes"] for k, _ in figures})
     per = "; ".join(f"{label}: {result[names[0]][k]['routes']}" for k, label in figures)
     lines += ["", f"Routes: {counts[0]}" if len(counts) == 1 else f"Routes per column: {per}"]
@@ -266,9 +330,11 @@ def _write_csv(path: Path, rows: list[dict]) -> None:
         w.writerows(rows)
 
 
-def tables(arms: dict[str, list[Path]], n_boot: int = BOOTSTRAP) -> list[tuple[str, list[dict], str]]:
+def tables(arms: dict[str, list[Path]], n_boot: int = BOOTSTRAP,
+           seeds: dict[str, list] | None = None) -> list[tuple[str, list[dict], str]]:
     """[(file stem, CSV rows, Markdown)] of Tables 3 and 4, on every route and on the routes
-    every run completed; ReportError for a folder that is not a finished run."""
+    every run completed; ``seeds``: each arm's seed index of each folder (``compare``);
+    ReportError for a folder that is not a finished run."""
     loaded = {name: [route_rows(f) for f in folders] for name, folders in arms.items()}
     everyone = [r for rs in loaded.values() for r in rs]
     if not set.intersection(*(set(r) for r in everyone)):
@@ -276,13 +342,13 @@ def tables(arms: dict[str, list[Path]], n_boot: int = BOOTSTRAP) -> list[tuple[s
     done = completed_keys(everyone)
     out = []
     for suffix, keys, where in (("", None, "every route"), ("_common", done, f"the {len(done)} routes every run completed")):
-        t3 = compare(loaded, TABLE3, keys, n_boot)
-        t4 = compare(loaded, TABLE4_ALL, keys, n_boot)
-        md4 = (markdown(t4, arms, TABLE4, f"Table 4: temporal stability on moving ticks ({where})") + "\n\n"
-               + markdown(t4, arms, TABLE4_OTHER, f"Table 4, other readings ({where})"))
+        t3 = compare(loaded, TABLE3, keys, n_boot, seeds=seeds)
+        t4 = compare(loaded, stability_figures(), keys, n_boot, seeds=seeds)
+        md4 = (markdown(t4, arms, stability_figures(stab.TABLE4), f"Table 4: temporal stability on moving ticks ({where})")
+               + "\n\n" + markdown(t4, arms, stability_figures(stab.OTHER), f"Table 4, other readings ({where})"))
         out += [(f"table3{suffix}", csv_rows(t3, arms, TABLE3),
                  markdown(t3, arms, TABLE3, f"Table 3: closed-loop driving performance ({where})")),
-                (f"table4{suffix}", csv_rows(t4, arms, TABLE4_ALL), md4)]
+                (f"table4{suffix}", csv_rows(t4, arms, stability_figures()), md4)]
     return out
 
 
@@ -306,6 +372,6 @@ write_arm_report = write_report  # the name ``sumo-scimm reproduce`` calls it by
 
 def arm_figures(folders: list[Path], n_boot: int = BOOTSTRAP, seed: int = BOOT_SEED) -> dict[str, tuple[float, float, float]]:
     """{figure: (mean over the runs, 2.5 %, 97.5 %)} of one arm's runs (its seeds), every
-    figure of Tables 3 and 4 (the two-level bootstrap of the module docstring)."""
-    result = compare({"arm": [route_rows(f) for f in folders]}, (*TABLE3, *TABLE4_ALL), None, n_boot, seed)["arm"]
+    figure of Tables 3 and 4 (the arm's interval of the module docstring)."""
+    result = compare({"arm": [route_rows(f) for f in folders]}, (*TABLE3, *stability_figures()), None, n_boot, seed)["arm"]
     return {k: (v["value"], v["low"], v["high"]) for k, v in result.items()}

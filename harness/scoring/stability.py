@@ -1,4 +1,5 @@
-"""Temporal-stability metrics of a route run (docs/design.md §9.3, the paper's Table 4).
+"""Temporal-stability metrics of a route run (docs/design.md §9.3, the paper's Table 4), one entry
+each in METRICS.
 
 The paper gives no formulas; these are this project's, per 20 Hz tick t (dt = 0.05 s), over
 MOVING ticks only: the ego speed v (the log's ``v``, the speed at the end of the tick) is
@@ -7,32 +8,20 @@ prediction, so an arm that stands longer would otherwise look smoother. Each met
 mean over the route's moving ticks (NaN if it has none, or if the agent predicts nothing);
 tables then average routes.
 
-- steering jerk: mean_t |steer_t - 2 steer_{t-1} + steer_{t-2}| / dt^2 of the commanded
-  steer  [1/s^2]                                                    ``steering_jerk_moving``
-- longitudinal jerk: the same on u = throttle - brake  [1/s^2]  ``longitudinal_jerk_moving``
-- curvature variation: mean_t mean_k |kappa_t(k) - kappa_{t-1}(k)|, kappa(k) the signed
-  three-point (Menger) curvature 2 ((b - a) x (c - b)) / (|b - a| |c - b| |c - a|) at each
-  interior point b of a predicted trajectory, a and c its neighbours  [1/m]:
-  on the ego (0, 0) followed by the 10 speed waypoints (9 interior points; the reading
-  with the paper's magnitudes, 0.029-0.043)                   ``curvature_variation_wps``
-  and on the 20 path points (18 interior points)               ``curvature_variation_path``;
-  a curvature is undefined (left out of the mean over k) where a side at its point is
-  shorter than MIN_SIDE (a trajectory that ends at the ego: no direction to bend).
-  A third reading, kept from the first Table 4: kappa = 2 c2 / (1 + c1^2)^(3/2) at s = 0
-  of the quadratic fit y(s) = c0 + c1 s + c2 s^2 of the path  ``curvature_variation_quadratic``
-- speed variation: mean_t sum_k |v^_t(tau_k) - v^_{t-1}(tau_k)|, v^(tau_k) =
-  |W_k - W_{k-1}| / 0.25 s the speeds of the predicted speed waypoints W (W_0 the ego,
-  paper eq. 12's phi), in km/h (the paper's magnitudes, 3.2-4.7)  ``speed_variation_kmh``
-  and in m/s (= km/h / 3.6)                                          ``speed_variation_ms``
-- the share of standing ticks (v <= MOVING_SPEED) of the route  [0..1]  ``standing_share``
-
-The first Table 4's readings over every tick, standing ones included, stay in the record
-under their old names with their old meaning: ``steering_jerk``, ``longitudinal_jerk``,
-``curvature_variation`` (the quadratic reading) and ``speed_variation`` [m/s].
+METRICS is the one table of them: each entry's record column, function, label, unit,
+better direction, where it shows (the paper's Table 4 and its claims, Table 4's other
+readings, or the CSV only) and its formula and reason for the docs table
+(``docs_table``, the table of docs/scoring.md). ``stability`` computes every entry;
+records.csv, ``sumo-scimm report``'s Table 4 and the claims of ``reproduce`` are made from it.
+A curvature is undefined (left out of the mean over k) where a side at its point is shorter
+than MIN_SIDE (a trajectory that ends at the ego: no direction to bend).
 """
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
+from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
@@ -42,13 +31,6 @@ SPEED_WP_DT = 0.25  # spacing of the predicted speed waypoints [s]
 MOVING_SPEED = 0.1  # a tick moves when the ego is faster than this at it and the tick before [m/s]
 MIN_SIDE = 0.01  # shortest side of a three-point curvature [m]; below, the bend has no direction
 KMH_PER_MS = 3.6
-
-# the metrics of one route run, in the order of the record's columns (harness.scoring.records)
-MOVING_METRICS = ("steering_jerk_moving", "longitudinal_jerk_moving", "curvature_variation_wps",
-                  "curvature_variation_path", "curvature_variation_quadratic", "speed_variation_kmh",
-                  "speed_variation_ms", "standing_share")
-ALL_TICK_METRICS = ("steering_jerk", "longitudinal_jerk", "curvature_variation", "speed_variation")
-
 
 def moving_ticks(v: np.ndarray) -> np.ndarray:
     """(T,) bool: tick t moves, v_t > MOVING_SPEED and v_{t-1} > MOVING_SPEED (tick 0 never)."""
@@ -170,29 +152,128 @@ def _predictions(arr, shape: tuple, n: int) -> np.ndarray:
     return a if len(a) else np.full((n, *shape), np.nan)
 
 
+class RouteSignals:
+    """The arrays of one route run's log that the metrics read, each made once: ``v`` [m/s],
+    ``steer``, ``u`` = throttle - brake (T,), ``moving`` (T,) bool, ``path`` (T, 20, 2) and
+    ``wps`` (T, 10, 2) [m, ego frame], and the per-tick changes several metrics share."""
+
+    def __init__(self, log: dict):
+        self.v = np.asarray(log["v"], dtype=float)
+        self.moving = moving_ticks(self.v)
+        self.steer = np.asarray(log["steer"], dtype=float)
+        self.u = np.asarray(log["throttle"], dtype=float) - np.asarray(log["brake"], dtype=float)
+        self.path = _predictions(log["pred_path"], (20, 2), len(self.v))
+        self.wps = _predictions(log["pred_speed_wps"], (10, 2), len(self.v))
+
+    @cached_property
+    def quadratic_change(self) -> np.ndarray:
+        """(T,) |kappa_t - kappa_{t-1}| of the quadratic-fit path curvature [1/m]."""
+        return np.abs(np.diff(path_curvature(self.path), prepend=np.nan))
+
+    @cached_property
+    def speed_change(self) -> np.ndarray:
+        """(T,) sum_k |v^_t(tau_k) - v^_{t-1}(tau_k)| of the speed waypoints [m/s]."""
+        return _speed_change(self.wps)
+
+    def on_moving(self, x: np.ndarray) -> float:
+        return masked_mean(x, self.moving)
+
+    def on_every(self, x: np.ndarray) -> float:
+        return masked_mean(x, np.ones(len(x), dtype=bool))
+
+
+TABLE4, OTHER, CSV_ONLY = "table4", "other", "csv"  # where a metric shows (Metric.shows)
+PAPER_ARMS = ("baseline", "fixed", "scimm")  # the arms of the paper's Tables 3 and 4, in their order
+
+
+@dataclass(frozen=True)
+class Metric:
+    """One stability metric of a route run.
+
+    key: its records.csv column; compute: its value from a route's RouteSignals; label and
+    unit: its Table 4 heading ``label [unit]`` (unit "" for a number without one); better:
+    "lower" or "higher", the direction the paper calls better ("" for none); shows: TABLE4
+    (the paper's Table 4: a column of the main table and one of the paper's claims), OTHER
+    (Table 4's other readings) or CSV_ONLY (table4.csv only); formula and why: its row of
+    the docs table ("" keeps it out of that table); paper: the paper's Table 4 values of its
+    baseline, Fixed-IMM and SC-IMM arms (PAPER_ARMS), None where the paper has none."""
+    key: str
+    compute: Callable[[RouteSignals], float]
+    label: str
+    unit: str
+    better: str
+    shows: str
+    formula: str = ""
+    why: str = ""
+    paper: tuple[float, float, float] | None = None
+
+    @property
+    def heading(self) -> str:
+        return f"{self.label} [{self.unit}]" if self.unit else self.label
+
+
+# every metric of one route run, in the order of the record's columns (harness.scoring.records)
+METRICS = (
+    Metric("steering_jerk_moving", lambda s: s.on_moving(second_differences(s.steer)),
+           "steering jerk", "1/s^2", "lower", TABLE4,
+           "mean_t \\|steer_t - 2 steer_{t-1} + steer_{t-2}\\| / dt^2, commanded steer",
+           "the paper's \"change of the control command\"", (19.11, 17.84, 16.13)),
+    Metric("longitudinal_jerk_moving", lambda s: s.on_moving(second_differences(s.u)),
+           "longitudinal jerk", "1/s^2", "lower", TABLE4,
+           "the same on u = throttle - brake",
+           "one signed longitudinal command, as a brake pedal is a negative throttle", (44.01, 40.80, 38.96)),
+    Metric("curvature_variation_wps", lambda s: s.on_moving(frame_change(menger_curvature(with_ego(s.wps)))),
+           "curvature variation", "1/m", "lower", TABLE4,
+           "mean_t mean_k \\|kappa_t(k) - kappa_{t-1}(k)\\|, kappa(k) = 2 ((b - a) x (c - b)) / (\\|b - a\\| "
+           "\\|c - b\\| \\|c - a\\|) the signed three-point (Menger) curvature at each interior point b of the "
+           "ego (0, 0) followed by the 10 predicted speed waypoints",
+           "the predicted trajectory itself (where the car is to be at 0.25..2.5 s); the reading with the "
+           "paper's magnitudes", (0.0430, 0.0337, 0.0289)),
+    Metric("curvature_variation_path", lambda s: s.on_moving(frame_change(menger_curvature(s.path))),
+           "path curvature variation", "1/m", "lower", OTHER,
+           "the same on the 20 predicted path points (0..19 m)",
+           "the geometric path alone, where speed does not enter"),
+    Metric("curvature_variation_quadratic", lambda s: s.on_moving(s.quadratic_change),
+           "quadratic curvature variation", "1/m", "lower", OTHER,
+           "mean_t \\|kappa_t - kappa_{t-1}\\|, kappa = 2 c2 / (1 + c1^2)^1.5 at s = 0 of the quadratic fit "
+           "y(s) = c0 + c1 s + c2 s^2 of the path",
+           "the first Table 4's reading, kept for comparison: one number per path"),
+    Metric("speed_variation_kmh", lambda s: s.on_moving(s.speed_change * KMH_PER_MS),
+           "speed variation", "km/h", "lower", TABLE4,
+           "mean_t sum_k \\|v^_t(tau_k) - v^_{t-1}(tau_k)\\|, v^(tau_k) = \\|W_k - W_{k-1}\\| / 0.25 s "
+           "(W_0 the ego) the speeds of the predicted waypoints",
+           "the paper's magnitudes (3.2-4.7) match km/h", (4.662, 3.200, 3.317)),
+    Metric("speed_variation_ms", lambda s: s.on_moving(s.speed_change),
+           "speed variation", "m/s", "lower", OTHER,
+           "the same in m/s (= km/h / 3.6)", "SI, and the first Table 4's unit"),
+    Metric("standing_share", lambda s: float(np.mean(s.v <= MOVING_SPEED)) if len(s.v) else math.nan,
+           "standing share", "", "", OTHER,
+           "share of the route's ticks at v <= 0.1 m/s (0..1)",
+           "beside the metrics: how much of a route the average leaves out"),
+    # the first Table 4's readings, over every tick, standing ones included (table4.csv only)
+    Metric("steering_jerk", lambda s: second_difference(s.steer), "steering jerk, every tick", "1/s^2", "lower",
+           CSV_ONLY),
+    Metric("longitudinal_jerk", lambda s: second_difference(s.u), "longitudinal jerk, every tick", "1/s^2",
+           "lower", CSV_ONLY),
+    Metric("curvature_variation", lambda s: s.on_every(s.quadratic_change),
+           "quadratic curvature variation, every tick", "1/m", "lower", CSV_ONLY),
+    Metric("speed_variation", lambda s: s.on_every(s.speed_change), "speed variation, every tick", "m/s",
+           "lower", CSV_ONLY),
+)
+
+
 def stability(log: dict) -> dict[str, float]:
-    """Every metric of one route run (MOVING_METRICS, then ALL_TICK_METRICS) from its log
-    arrays: ``v`` [m/s], ``steer``, ``throttle``, ``brake`` (T,), ``pred_path`` (T, 20, 2)
-    and ``pred_speed_wps`` (T, 10, 2) [m], ego frame (NaN rows: no prediction)."""
-    v = np.asarray(log["v"], dtype=float)
-    moving = moving_ticks(v)
-    steer = np.asarray(log["steer"], dtype=float)
-    u = np.asarray(log["throttle"], dtype=float) - np.asarray(log["brake"], dtype=float)
-    path = _predictions(log["pred_path"], (20, 2), len(v))
-    wps = _predictions(log["pred_speed_wps"], (10, 2), len(v))
-    quad = np.abs(np.diff(path_curvature(path), prepend=np.nan))
-    dv = _speed_change(wps)
-    out = {"steering_jerk_moving": masked_mean(second_differences(steer), moving),
-           "longitudinal_jerk_moving": masked_mean(second_differences(u), moving),
-           "curvature_variation_wps": masked_mean(frame_change(menger_curvature(with_ego(wps))), moving),
-           "curvature_variation_path": masked_mean(frame_change(menger_curvature(path)), moving),
-           "curvature_variation_quadratic": masked_mean(quad, moving),
-           "speed_variation_kmh": masked_mean(dv * KMH_PER_MS, moving),
-           "speed_variation_ms": masked_mean(dv, moving),
-           "standing_share": float(np.mean(v <= MOVING_SPEED)) if len(v) else math.nan,
-           # the first Table 4's readings, over every tick
-           "steering_jerk": second_difference(steer),
-           "longitudinal_jerk": second_difference(u),
-           "curvature_variation": masked_mean(quad, np.ones(len(quad), dtype=bool)),
-           "speed_variation": masked_mean(dv, np.ones(len(dv), dtype=bool))}
-    return out
+    """Every metric of METRICS of one route run from its log arrays:
+    ``v`` [m/s], ``steer``, ``throttle``, ``brake`` (T,), ``pred_path`` (T, 20, 2) and
+    ``pred_speed_wps`` (T, 10, 2) [m], ego frame (NaN rows: no prediction)."""
+    signals = RouteSignals(log)
+    return {m.key: m.compute(signals) for m in METRICS}
+
+
+def docs_table() -> str:
+    """The Markdown table of the metrics of docs/scoring.md: column, formula, unit, why, one
+    row per metric with a formula."""
+    lines = ["| column | formula | unit | better | why this reading |", "| --- | --- | --- | --- | --- |"]
+    lines += [f"| `{m.key}` | {m.formula} | {m.unit or '-'} | {m.better or '-'} | {m.why} |"
+              for m in METRICS if m.formula]
+    return "\n".join(lines)

@@ -164,13 +164,15 @@ def check_same_run(out: Path, identity: dict, done: list[dict], adding: bool) ->
             raise BadInput(f"{out} was started with other software ({_difference(old['software'], identity['software'])}); "
                            f"its records would mix two versions: resume with the software it was started with, or {afresh}")
         old_runs = old.get("route_runs")
+        _check_vehicle(out, old_runs, new_runs)
     else:  # an older layout: the route runs alone, without their configs' digests or ego model
         if mixing:
             raise BadInput(unknown)
-        old_runs = old
+        _check_vehicle(out, old, new_runs)
+        old_runs = ({k: {f: v for f, v in r.items() if f != "vehicle"} if isinstance(r, dict) else r
+                     for k, r in old.items()} if isinstance(old, dict) else old)
         new_runs = {k: {f: v for f, v in r.items() if not f.endswith("_digest") and f != "vehicle"}
                     for k, r in new_runs.items()}
-    _check_vehicle(out, old_runs, new_runs)
     if old_runs != new_runs:
         other = (f", or the same run described by other software ({_difference(old['software'], identity['software'])})"
                  if isinstance(old, dict) and old.get("software", identity["software"]) != identity["software"] else "")

@@ -114,14 +114,15 @@ class Stages:
 
 def reproduce(out: Path, seeds: int | range, repetitions: int, epochs: int | None, backend: Backend = Backend(),
               sets: tuple[str, str, str] = ("train", "val", EVAL_SET), arms: tuple[str, ...] | None = None,
-              second: str | None = SECOND_SET) -> str:
+              second: str | None = SECOND_SET, vehicle: str = "carla") -> str:
     """Run (or finish) the experiment in ``out``; returns the Markdown summary. ``seeds``:
     the seeds to run (an int K: 0..K-1); the tables pool every seed whose evaluations are in
     ``out``, so an experiment can be run in parts (``--seeds 0-2``, then ``--seeds 3-5``).
     ``backend``: where the collect and eval stages run; ``sets``: the training, validation
     and evaluation route sets (the paper's by default); ``arms``: the arms to run (names of
     ARMS, default all); ``second``: a second evaluation set every student is evaluated on too
-    (None: none)."""
+    (None: none);
+    ``vehicle``: the ego model of every drive (controller.ego)."""
     seeds = range(seeds) if isinstance(seeds, int) else seeds
     from model.train import TrainConfig
     from scimm.stage import dataset_episodes, make_teachers
@@ -136,7 +137,7 @@ def reproduce(out: Path, seeds: int | range, repetitions: int, epochs: int | Non
     out.mkdir(parents=True, exist_ok=True)
     st = Stages(out)
     train_dir, val_dir = out / "data" / "train", out / "data" / "val"
-    _collect(st, sets, train_dir, val_dir, repetitions, backend)
+    _collect(st, sets, train_dir, val_dir, repetitions, backend, vehicle)
     _, episodes = dataset_episodes(train_dir)
     for method in TEACHERS:
         if not is_complete(train_dir, method):
@@ -146,11 +147,11 @@ def reproduce(out: Path, seeds: int | range, repetitions: int, epochs: int | Non
     for seed in seeds:
         for arm in arms:
             ckpt = _train(st, out, arm, teacher[arm], seed, epochs, train_dir, val_dir)
-            _eval(st, ckpt, sets[2], out / "runs" / f"{arm}_s{seed}", arm, seed, None, backend)
+            _eval(st, ckpt, sets[2], out / "runs" / f"{arm}_s{seed}", arm, seed, None, backend, vehicle)
             if second is not None:
-                _eval(st, ckpt, second, out / "runs" / label2 / f"{arm}_s{seed}", arm, seed, label2, backend)
+                _eval(st, ckpt, second, out / "runs" / label2 / f"{arm}_s{seed}", arm, seed, label2, backend, vehicle)
         if len(arms) > 1:
-            _replay(st, out, arms, seed, sets[2], backend)
+            _replay(st, out, arms, seed, sets[2], backend, vehicle)
     pooled = pooled_runs(out / "runs", arms)
     pooled2 = pooled_runs(out / "runs" / label2, arms) if second is not None else None
     every = sorted({k for ks in pooled[1].values() for k in ks})
@@ -160,14 +161,15 @@ def reproduce(out: Path, seeds: int | range, repetitions: int, epochs: int | Non
 
 
 def _collect(st: Stages, sets: tuple[str, str, str], train_dir: Path, val_dir: Path, repetitions: int,
-             backend: Backend) -> None:
+             backend: Backend, vehicle: str) -> None:
     from harness.runs.evaluate import collect
-    w = f"--workers {backend.workers}"
+    w = f"--workers {backend.workers} --vehicle {vehicle}"
     train_set, val_set, _ = sets
     st.run("collect train", f"collect --routes {train_set} --out {train_dir} {w} --repetitions {repetitions} --resume",
-           lambda: collect(train_set, train_dir, repetitions=repetitions, resume=True, backend=backend))
+           lambda: collect(train_set, train_dir, repetitions=repetitions, resume=True, backend=backend,
+                           vehicle=vehicle))
     st.run("collect val", f"collect --routes {val_set} --out {val_dir} {w} --resume",
-           lambda: collect(val_set, val_dir, resume=True, backend=backend))
+           lambda: collect(val_set, val_dir, resume=True, backend=backend, vehicle=vehicle))
 
 
 def _train(st: Stages, out: Path, arm: str, teacher: str, seed: int, epochs: int | None,
@@ -185,17 +187,19 @@ def _train(st: Stages, out: Path, arm: str, teacher: str, seed: int, epochs: int
 
 
 def _eval(st: Stages, ckpt: Path, route_set: str, run_dir: Path, arm: str, seed: int, on: str | None,
-          backend: Backend) -> Path:
+          backend: Backend, vehicle: str) -> Path:
     """``run_dir``: the student ``ckpt`` evaluated (or its evaluation finished) on ``route_set``."""
     from harness.runs.evaluate import evaluate
     from model.arm_tables import eval_stage
     st.run(eval_stage(arm, seed, on), f"eval --routes {route_set} --agent {ckpt} --workers {backend.workers} "
-           f"--seed {seed} --out {run_dir} --resume",
-           lambda: evaluate(route_set, "student", str(ckpt), run_dir, seed=seed, resume=True, backend=backend))
+           f"--seed {seed} --out {run_dir} --vehicle {vehicle} --resume",
+           lambda: evaluate(route_set, "student", str(ckpt), run_dir, seed=seed, resume=True, backend=backend,
+                            vehicle=vehicle))
     return run_dir
 
 
-def _replay(st: Stages, out: Path, arms: tuple[str, ...], seed: int, route_set: str, backend: Backend) -> str:
+def _replay(st: Stages, out: Path, arms: tuple[str, ...], seed: int, route_set: str, backend: Backend,
+            vehicle: str) -> str:
     """Every arm's seed-``seed`` student fed the identical inputs of the expert's run on
     ``route_set`` (seed 0, evaluated once), compared with the first arm route-paired
     (harness.runs.replay: output stability without the exposure of each arm's own drive);
@@ -204,8 +208,8 @@ def _replay(st: Stages, out: Path, arms: tuple[str, ...], seed: int, route_set: 
     from harness.runs.replay import replay
     ref = out / "runs" / "expert_s0"
     st.run("eval expert s0", f"eval --routes {route_set} --agent expert --workers {backend.workers} --seed 0 "
-           f"--out {ref} --resume", lambda: evaluate(route_set, "expert", None, ref, seed=0, resume=True,
-                                                      backend=backend))
+           f"--out {ref} --vehicle {vehicle} --resume",
+           lambda: evaluate(route_set, "expert", None, ref, seed=0, resume=True, backend=backend, vehicle=vehicle))
     rdir = out / "replay" / f"s{seed}"
     made = rdir / "replay.json"  # written last
     done = made.is_file() and json.loads(made.read_text()).get("labels") == list(arms)

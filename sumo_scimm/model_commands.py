@@ -7,7 +7,7 @@ import os
 from pathlib import Path
 
 from harness.common.errors import BadInput
-from sumo_scimm.options import add_backend_options, backend_of
+from sumo_scimm.options import add_backend_options, add_vehicle_option, backend_of
 
 # = model.train.EPOCHS, EPOCH_STEPS, PATIENCE, ("none", *model.data.TEACHERS), model.loss.LossWeights()'s
 # scimm and mode (a test checks); importing model.train here would load torch for every
@@ -84,7 +84,8 @@ def _reproduce(args: argparse.Namespace) -> int:
             resolve_set(name)
         except UnknownSet as exc:
             raise BadInput(str(exc)) from None
-    print(reproduce(Path(args.out), seeds, args.repetitions, args.epochs, backend, sets, arms, second))
+    print(reproduce(Path(args.out), seeds, args.repetitions, args.epochs, backend, sets, arms, second,
+                    args.vehicle))
     return 0
 
 
@@ -140,6 +141,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     r.add_argument("--epochs", type=int, help="training epochs (default: sumo-scimm train's)")
     r.add_argument("--out", default="runs/reproduce", help="output folder (default runs/reproduce)")
     add_backend_options(r)  # for the collect and eval stages; training runs here
+    add_vehicle_option(r)
     # other route sets (e.g. town12_smoke everywhere): to try the pipeline in minutes, not for results
     r.add_argument("--train-routes", default="train", help="training route set (default train)")
     r.add_argument("--val-routes", default="val", help="validation route set (default val)")

@@ -36,6 +36,14 @@ def add_agent_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--agent-config", help="file passed to the agent's setup()")
 
 
+def add_vehicle_option(p: argparse.ArgumentParser) -> None:
+    """--vehicle: the ego model (controller.ego)."""
+    from controller.ego import DEFAULT_VEHICLE, VEHICLES
+    p.add_argument("--vehicle", default=DEFAULT_VEHICLE, choices=tuple(VEHICLES),
+                   help=f"ego model: carla (CARLA's Lincoln MKZ: engine, gearbox, brakes, tyres) or kinematic "
+                        f"(PDM-Lite's kinematic bicycle) (default {DEFAULT_VEHICLE}; docs/vehicle.md)")
+
+
 def add_backend_options(p: argparse.ArgumentParser) -> None:
     """--backend and --address (the --workers option is each command's own)."""
     p.add_argument("--backend", default="local", choices=("local", "ray"),

@@ -13,7 +13,7 @@ from pathlib import Path
 from files.atomic import write_atomic
 from harness.common.errors import BadInput
 from harness.loop.episode import AGENT_TIMEOUT
-from sumo_scimm.options import add_agent_options, add_backend_options, backend_of, seed_arg
+from sumo_scimm.options import add_agent_options, add_backend_options, add_vehicle_option, backend_of, seed_arg
 
 RULES = ("lb2.0", "lb2.1", "b2d")
 
@@ -23,7 +23,7 @@ def _eval(args: argparse.Namespace) -> int:
     res = evaluate(args.routes, args.agent, args.agent_config, Path(args.out) if args.out else None,
                    subset=args.routes_subset, repetitions=args.repetitions, seed=args.seed, resume=args.resume,
                    checkpoint=Path(args.checkpoint) if args.checkpoint else None, rules=args.rules,
-                   agent_timeout=args.agent_timeout, backend=backend_of(args))
+                   agent_timeout=args.agent_timeout, backend=backend_of(args), vehicle=args.vehicle)
     from harness.scoring.outputs import success_rate
     m = res.global_record["scores_mean"]
     print(f"{len(res.records)} routes -> {res.out}: DS {m['score_composed']:.2f}, RC {m['score_route']:.2f}, "
@@ -65,7 +65,8 @@ def _render(args: argparse.Namespace) -> int:
         raise BadInput(f"--out {args.out!r} must end in .mp4 (a PNG of the path is written beside it)")
     args.agent, args.agent_config = check_agent(args.agent, args.agent_config)
     k = ids.index(args.route)
-    res, png = render_route(routes[k], args.agent, args.agent_config, route_seed(args.seed, k), Path(args.out))
+    res, png = render_route(routes[k], args.agent, args.agent_config, route_seed(args.seed, k), Path(args.out),
+                            vehicle=args.vehicle)
     print(f"route {args.route}: {res.status}, RC {res.rc:.2f}, {res.game_time:.1f} s -> {args.out}, {png}")
     return 0
 
@@ -133,7 +134,7 @@ def _collect(args: argparse.Namespace) -> int:
     from harness.expert.dataset import describe
     from harness.runs.evaluate import collect
     index = collect(args.routes, Path(args.out), repetitions=args.repetitions, seed=args.seed, resume=args.resume,
-                    backend=backend_of(args))
+                    backend=backend_of(args), vehicle=args.vehicle)
     print(describe(index))
     return 0
 
@@ -177,6 +178,7 @@ def _add_eval(sub: argparse._SubParsersAction) -> None:
     e.add_argument("--agent-timeout", type=float, default=AGENT_TIMEOUT,
                    help=f"seconds one run_step may take before the route ends as 'Failed - Agent crashed' "
                         f"(default {AGENT_TIMEOUT:g})")
+    add_vehicle_option(e)
     add_backend_options(e)
     e.set_defaults(func=_eval)
 
@@ -195,6 +197,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     r.add_argument("--out", required=True, help="video file (.mp4; the path PNG goes beside it), or with "
                    "--runs the figure (.png)")
     r.add_argument("--seed", type=seed_arg, default=0, help="run seed, as in eval (default 0)")
+    add_vehicle_option(r)
     r.set_defaults(func=_render)
 
     sc = sub.add_parser("score", help="recompute the scores of a Leaderboard results JSON (ours or CARLA's)")
@@ -220,6 +223,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     co.add_argument("--repetitions", type=int, default=1, help="runs per route, each with its own seed (default 1)")
     co.add_argument("--seed", type=seed_arg, default=0, help="run seed (default 0)")
     co.add_argument("--resume", action="store_true", help="finish an interrupted collection")
+    add_vehicle_option(co)
     add_backend_options(co)
     co.set_defaults(func=_collect)
 

@@ -107,6 +107,19 @@ def test_resume_refuses_a_folder_started_with_other_software(half_run, tmp_path,
     assert _tree(out) == before
 
 
+def test_resume_refuses_another_ego_model(half_run, tmp_path):
+    """A run driven with CARLA's car (the default) resumed with the kinematic one would mix
+    two ego models in one score: one line naming the model to resume with, nothing written."""
+    out = tmp_path / "run"
+    shutil.copytree(half_run, out)
+    before = _tree(out)
+    code, printed = _cli([*SMOKE_TWO, "--out", str(out), "--resume", "--vehicle", "kinematic"])
+    _one_line_exit_2(code, printed, "was driven with --vehicle carla, not kinematic", "resume with --vehicle carla",
+                     "another --out")
+    assert _tree(out) == before
+    assert all(r["vehicle"] == "carla" for r in json.loads((out / "run.jsonc").read_text())["route_runs"].values())
+
+
 def test_a_finished_run_is_scored_again_by_other_software_and_keeps_its_run_json(one_route_run, tmp_path):
     """Nothing is added to a finished run, so nothing mixes: it is scored again, and its
     run.json keeps naming the software that made its records."""

@@ -49,12 +49,14 @@ def test_labels_have_the_documented_shapes_and_meaning(episode):
     assert a["speed_wps"].shape[1:] == (10, 2)
     # path points lie 1 m apart along the path, starting at the ego: each step is the chord
     # of a 1 m arc, at most 1 m and at least 0.99 m (the chord on a 2 m radius, sharper than
-    # any lane); measured 0.9969-1.0000, 3 of the 3,382 steps below 0.999
+    # any lane); measured 0.9945-1.0000, 34 of the 3,287 steps below 0.999 with CARLA's car
+    # (the kinematic car: 0.9969-1.0000, 3 of 3,382): where the ego is off the route's centre
+    # the path bends towards it within its first metres
     steps = np.hypot(*np.diff(a["path"], axis=1).transpose(2, 0, 1))
     np.testing.assert_allclose(a["path"][:, 0], 0.0, atol=1e-9)
     assert np.all(steps <= 1.0 + 1e-9), steps.max()
     assert np.all(steps >= 0.99), steps.min()
-    assert np.mean(steps < 0.999) < 0.01
+    assert np.mean(steps < 0.999) < 0.015
     # speed waypoint k is where the ego is 0.25 (k + 1) s later: the distance to the first one
     # is close to 0.25 s x speed (the ego accelerates or brakes a little within 0.25 s)
     d0 = np.hypot(*a["speed_wps"][:, 0].T)

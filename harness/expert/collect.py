@@ -15,6 +15,7 @@ One file per route run, ``episodes/<route>_rep<k>.npz``, holding per frame (F fr
     target_speed (F,), flag_* (F,)                  the expert's target and hazard flags
     cue_* (F,)                                      the scene cues of docs/design.md §6.3 (docs/dataset.md)
     route_file, route_id, town                      to rebuild the plan
+    vehicle                                         the ego model that drove it (controller.ego)
 
 Frames are kept only when the whole 2.5 s future exists (the last 2.5 s are dropped).
 The run folder also gets the usual records/results files and ``index.csv``, one row per
@@ -151,6 +152,8 @@ class Recorder:
         return out
 
 
-def save_episode(path: Path, arrays: dict, route_file: str, route_id: str, town: str, record: dict) -> None:
+def save_episode(path: Path, arrays: dict, route_file: str, route_id: str, town: str, record: dict,
+                 vehicle: str) -> None:
     savez_atomic(path, **arrays, route_file=np.array(route_file), route_id=np.array(route_id),
-                 town=np.array(town), ds=np.array(record["ds"]), status=np.array(record["status"]))
+                 town=np.array(town), ds=np.array(record["ds"]), status=np.array(record["status"]),
+                 vehicle=np.array(vehicle))

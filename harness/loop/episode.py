@@ -24,7 +24,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from controller.vehicle import DT, LENGTH, WIDTH, Control, EgoState, EgoVehicle
+from controller.ego import DEFAULT_VEHICLE, make_ego
+from controller.vehicle import DT, LENGTH, WIDTH, Control, EgoState
 from harness.common.stops import is_stop, watch_stops
 from harness.scoring import criteria
 from harness.scoring.statuses import FAILED_AGENT, FAILED_SETUP, FAILED_SIMULATION
@@ -125,9 +126,9 @@ def sensor_inputs(specs: list[dict], ego: EgoState, plan: GlobalPlan, progress: 
 
 
 def run_episode(route: Route, agent_name: str, agent_config: str | None, seed: int,
-                on_frame=None, agent_timeout: float = AGENT_TIMEOUT) -> EpisodeResult:
+                on_frame=None, agent_timeout: float = AGENT_TIMEOUT, vehicle: str = DEFAULT_VEHICLE) -> EpisodeResult:
     """Drive one route with an agent; ``seed`` fixes traffic, hazards, noise and SUMO.
-    ``agent_timeout``: the per-step deadline of ``run_step`` [s of wall time].
+    ``agent_timeout``: the per-step deadline of ``run_step`` [s of wall time]; ``vehicle``: the ego model.
 
     ``on_frame(frame)`` is called with a :class:`Frame` after every tick (rendering,
     recording); it must not change the simulation. An error ends the route with its
@@ -139,9 +140,10 @@ def run_episode(route: Route, agent_name: str, agent_config: str | None, seed: i
     net = load_net(route.town)
     plan = build_plan(route, net)
     run = _Run()
+    ego = make_ego(vehicle, EgoState(*plan.path.pose(0.0), 0.0), rngs[2])
     world = World(route.town, int(ss.generate_state(1)[0] % (2**31 - 1)), background_roads(route, net))
     try:
-        status, message, rc = _drive(run, route, net, plan, world, rngs, agent_name, agent_config, on_frame,
+        status, message, rc = _drive(run, route, net, plan, world, (*rngs[:2], ego), agent_name, agent_config, on_frame,
                                      agent_timeout)
     except _AgentSetupError as exc:
         status, message, rc = FAILED_SETUP, str(exc), 0.0
@@ -175,15 +177,13 @@ class _Run:
 def _drive(run: _Run, route: Route, net, plan: GlobalPlan, world: World, rngs: tuple, agent_name: str,
            agent_config: str | None, on_frame, agent_timeout: float) -> tuple[str, str, float]:
     """Set up the scene and the agent, then tick until a criterion ends the route or the
-    agent fails; returns (status, message, RC). ``rngs``: the traffic, hazard and ego
-    generators. A failing agent set-up raises _AgentSetupError; any other error (the
-    simulator's, the harness's) propagates."""
+    agent fails; returns (status, message, RC). ``rngs``: the traffic and hazard generators
+    and the ego (controller.ego). A failing agent set-up raises _AgentSetupError; any other
+    error (the simulator's, the harness's) propagates."""
     from harness.sensors.bev import BevRenderer  # the renderer pulls OpenCV; keep import local
 
-    rng_traffic, rng_hazard, rng_ego = rngs
-    x0, y0, yaw0 = plan.path.pose(0.0)
+    rng_traffic, rng_hazard, ego = rngs
     scene = Scene(route, net, plan, world, rng_traffic, rng_hazard)
-    ego = EgoVehicle(EgoState(x0, y0, yaw0, 0.0), rng_ego)
     scene.start(ego.state)
     snap = world.snapshot()
     lights = [p for p in plan.passages if p.tls]

@@ -8,6 +8,7 @@ import cv2
 import numpy as np
 
 from harness.sensors.bev import BevRenderer, colorize, ego_to_image
+from controller.ego import DEFAULT_VEHICLE
 from harness.loop.episode import EpisodeResult, run_episode
 from scenarios.routefile import Route
 
@@ -16,8 +17,9 @@ SCALE = 4  # video pixels per BEV pixel
 
 
 def render_route(route: Route, agent: str, agent_config: str | None, seed: int, video: Path,
-                 every: int = 1) -> tuple[EpisodeResult, Path]:
-    """Drive the route, write the BEV video (every ``every``-th tick) and ``<video>.png``."""
+                 every: int = 1, vehicle: str = DEFAULT_VEHICLE) -> tuple[EpisodeResult, Path]:
+    """Drive the route with ego model ``vehicle`` (controller.ego), write the BEV video (every
+    ``every``-th tick) and ``<video>.png``."""
     bev = BevRenderer.for_town(route.town)
     video.parent.mkdir(parents=True, exist_ok=True)
     size = 64 * SCALE
@@ -44,7 +46,7 @@ def render_route(route: Route, agent: str, agent_config: str | None, seed: int, 
         writer.write(img)
 
     try:
-        res = run_episode(route, agent, agent_config, seed, on_frame=on_frame)
+        res = run_episode(route, agent, agent_config, seed, on_frame=on_frame, vehicle=vehicle)
     finally:
         writer.release()
     png = video.with_suffix(".png")

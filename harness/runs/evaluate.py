@@ -20,6 +20,7 @@ import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
+from controller.ego import DEFAULT_VEHICLE
 from harness.common.errors import BadInput
 from harness.common.lock import FolderLock
 from harness.loop.agent import check_agent, load_agent
@@ -206,13 +207,14 @@ def _run(jobs: list[Job], out: Path, resume: bool, backend: Backend, what: str, 
 def evaluate(routes: str, agent: str, agent_config: str | None = None, out: Path | None = None, *,
              subset: str | None = None, repetitions: int = 1, seed: int = 0, resume: bool = False,
              checkpoint: Path | None = None, rules: str = "lb2.0", agent_timeout: float = AGENT_TIMEOUT,
-             backend: Backend = Backend()) -> EvalResult:
+             backend: Backend = Backend(), vehicle: str = DEFAULT_VEHICLE) -> EvalResult:
     """Drive route set ``routes`` (a set name or a route file) with ``agent`` and score it.
 
     ``out`` defaults to ``runs/<set>_<agent>``; ``checkpoint`` (the Leaderboard results file)
     to ``out/results.json``. A route's seed depends on the run seed, the repetition and its
     place in the whole set (not the subset), so ``subset`` reruns a route exactly as the full
-    run drove it. ``resume`` finishes an interrupted run in ``out``.
+    run drove it. ``resume`` finishes an interrupted run in ``out``. ``vehicle``: the ego
+    model (controller.ego).
     """
     _check_count(repetitions)
     if not (math.isfinite(agent_timeout) and agent_timeout > 0):
@@ -231,7 +233,8 @@ def evaluate(routes: str, agent: str, agent_config: str | None = None, out: Path
     place = {r.id: i for i, r in enumerate(all_routes)}
     runs = [(rep, r) for rep in range(repetitions) for r in chosen]
     jobs = [Job(k, r, rep, agent, agent_config, route_seed(seed, rep * len(all_routes) + place[r.id]),
-                str(out / "logs"), rules, agent_timeout=agent_timeout) for k, (rep, r) in enumerate(runs)]
+                str(out / "logs"), rules, agent_timeout=agent_timeout, vehicle=vehicle)
+            for k, (rep, r) in enumerate(runs)]
     checkpoint = checkpoint if checkpoint is not None else out / "results.json"
     sensors = [s["type"] for s in load_agent(agent).sensors()]
     from harness.runs.runner import rss_summary
@@ -242,7 +245,7 @@ def evaluate(routes: str, agent: str, agent_config: str | None = None, out: Path
 
 
 def collect(routes: str, out: Path, *, repetitions: int = 1, seed: int = 0, resume: bool = False,
-            backend: Backend = Backend()):
+            backend: Backend = Backend(), vehicle: str = DEFAULT_VEHICLE):
     """The expert drives route set ``routes`` and every episode is recorded at 4 Hz into
     ``out/episodes`` (harness.expert.collect); returns the frame index it writes to
     ``out/index.csv`` (a pandas DataFrame, harness.expert.dataset.build_index)."""
@@ -255,7 +258,8 @@ def collect(routes: str, out: Path, *, repetitions: int = 1, seed: int = 0, resu
     _check_count(repetitions, len(chosen))
     runs = [(rep, r) for rep in range(repetitions) for r in chosen]
     jobs = [Job(k, r, rep, "expert", None, route_seed(seed, k), str(out / "logs"),
-                collect_dir=str(out / "episodes"), route_file=str(path)) for k, (rep, r) in enumerate(runs)]
+                collect_dir=str(out / "episodes"), route_file=str(path), vehicle=vehicle)
+            for k, (rep, r) in enumerate(runs)]
     with FolderLock(out):
         _run(jobs, out, resume, backend, "a collection", sensors=["pose", "speed", "world"])
         try:

@@ -18,6 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
+from controller.ego import DEFAULT_VEHICLE
 from files.atomic import savez_atomic
 from harness.loop.episode import AGENT_TIMEOUT
 from harness.scoring.bench2drive import record_keys
@@ -40,6 +41,7 @@ class Job:
     collect_dir: str = ""  # if set, the episode is recorded there at 4 Hz (harness.expert.collect)
     route_file: str = ""
     agent_timeout: float = AGENT_TIMEOUT  # per-step deadline of run_step [s of wall time]
+    vehicle: str = DEFAULT_VEHICLE  # the ego model (controller.ego)
 
     @property
     def key(self) -> str:
@@ -108,7 +110,8 @@ def run_job(job: Job) -> dict:
         from harness.expert.collect import Recorder
         recorder = Recorder()
     res = run_episode(job.route, job.agent, job.agent_config, job.seed,
-                      on_frame=recorder.on_frame if recorder else None, agent_timeout=job.agent_timeout)
+                      on_frame=recorder.on_frame if recorder else None, agent_timeout=job.agent_timeout,
+                      vehicle=job.vehicle)
     arrays = res.log.arrays()
     savez_atomic(Path(job.log_dir) / f"{job.key}.npz", **arrays)
     values: dict = {}
@@ -129,7 +132,7 @@ def run_job(job: Job) -> dict:
     if recorder is not None:
         from harness.expert.collect import save_episode
         save_episode(Path(job.collect_dir) / f"{job.key}.npz", recorder.arrays(), job.route_file,
-                     job.route.id, job.route.town, record)
+                     job.route.id, job.route.town, record, job.vehicle)
     return record
 
 

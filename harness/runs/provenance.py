@@ -105,7 +105,8 @@ def run_identity(jobs) -> dict:
     """What makes the records of ``jobs`` (harness.runs.jobs.Job) what they are: the software,
     and per route run key the seed, the route (a hash of its parsed definition), the agent
     (and, for ``module:Class``, its module file's digest), its config (an absolute path) and
-    the config's digest, the rules, the step deadline and whether it records a dataset.
+    the config's digest, the rules, the step deadline, whether it records a dataset and the
+    ego model (controller.ego).
     Workers, backend and the results file do not change records and are not in it."""
     def config(path):
         return os.path.abspath(path) if path else None
@@ -114,7 +115,8 @@ def run_identity(jobs) -> dict:
         run = {"seed": j.seed, "route": hashlib.sha256(repr(j.route).encode()).hexdigest()[:16],
                "agent": j.agent, "agent_config": config(j.agent_config),
                "agent_config_digest": config_digest(config(j.agent_config)) if j.agent_config else None,
-               "rules": j.rules, "agent_timeout": j.agent_timeout, "collect": bool(j.collect_dir)}
+               "rules": j.rules, "agent_timeout": j.agent_timeout, "collect": bool(j.collect_dir),
+               "vehicle": j.vehicle}
         module = _agent_module(j.agent)
         if module:
             run["agent_module_digest"] = config_digest(module)
@@ -162,11 +164,15 @@ def check_same_run(out: Path, identity: dict, done: list[dict], adding: bool) ->
             raise BadInput(f"{out} was started with other software ({_difference(old['software'], identity['software'])}); "
                            f"its records would mix two versions: resume with the software it was started with, or {afresh}")
         old_runs = old.get("route_runs")
-    else:  # an older layout: the route runs alone, without their configs' digests
+        _check_vehicle(out, old_runs, new_runs)
+    else:  # an older layout: the route runs alone, without their configs' digests or ego model
         if mixing:
             raise BadInput(unknown)
-        old_runs = old
-        new_runs = {k: {f: v for f, v in r.items() if not f.endswith("_digest")} for k, r in new_runs.items()}
+        _check_vehicle(out, old, new_runs)
+        old_runs = ({k: {f: v for f, v in r.items() if f != "vehicle"} if isinstance(r, dict) else r
+                     for k, r in old.items()} if isinstance(old, dict) else old)
+        new_runs = {k: {f: v for f, v in r.items() if not f.endswith("_digest") and f != "vehicle"}
+                    for k, r in new_runs.items()}
     if old_runs != new_runs:
         other = (f", or the same run described by other software ({_difference(old['software'], identity['software'])})"
                  if isinstance(old, dict) and old.get("software", identity["software"]) != identity["software"] else "")
@@ -177,6 +183,17 @@ def _difference(was: dict, now: dict) -> str:
     """'<name> <now>, the run has <was>' for the first software entry that differs."""
     name = next(k for k in (*now, *was) if now.get(k) != was.get(k))
     return f"{name} {now.get(name)}, the run has {was.get(name)}"
+
+
+def _check_vehicle(out: Path, old_runs, new_runs: dict) -> None:
+    """BadInput if the run in ``out`` was driven with another ego model (its route runs name
+    it; a run.jsonc made before they did fails the comparison of the route runs instead)."""
+    was = sorted({r["vehicle"] for r in old_runs.values() if isinstance(r, dict) and "vehicle" in r}
+                 if isinstance(old_runs, dict) else ())
+    now = sorted({r["vehicle"] for r in new_runs.values()})
+    if was and was != now:
+        raise BadInput(f"{out} was driven with --vehicle {', '.join(was)}, not {', '.join(now)}: resume with "
+                       f"--vehicle {was[0]}, or choose another --out")
 
 
 def _first_difference(old: dict, new: dict) -> str:

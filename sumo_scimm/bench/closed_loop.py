@@ -51,6 +51,7 @@ from harness.loop.episode import EpisodeLog, Scene, background_roads, run_episod
 from harness.sim.plan import build_plan
 from harness.runs.jobs import Job, route_seed, run_job
 from harness.sim.world import World
+from controller.ego import DEFAULT_VEHICLE
 from controller.vehicle import EgoState
 from scenarios import resolve_set
 from scenarios.routefile import Route, read_routes
@@ -103,8 +104,9 @@ def run_bench(routes_name: str = "town12_smoke", n_routes: int = 4, bev_frames: 
               agent: str = "route_follower", agent_config: str | None = None,
               bare_inference: Callable[[list[dict]], float] | None = None,
               network_between: Callable[[list[dict]], Callable[[], object]] | None = None,
-              rounds: int = 1) -> dict:
-    """Measure and return the figures (one process, one core) with ``agent`` driving.
+              rounds: int = 1, vehicle: str = DEFAULT_VEHICLE) -> dict:
+    """Measure and return the figures (one process, one core) with ``agent`` driving ego
+    model ``vehicle`` (controller.ego).
 
     ``bare_inference(inputs) -> ms``: the agent's inference alone on a list of its sensor
     inputs (dicts as ``run_step`` gets them) from sampled ticks of an episode.
@@ -124,7 +126,7 @@ def run_bench(routes_name: str = "town12_smoke", n_routes: int = 4, bev_frames: 
     results, snaps = [], []
     for _ in range(rounds):
         results.append(_round(routes, f"{routes_name} (first {len(routes)})", agent, agent_config,
-                              bare_inference, network_between, snaps))
+                              bare_inference, network_between, snaps, vehicle))
     key = "harness_over_bare_plus_inference" if "harness_over_bare_plus_inference" in results[0] else "harness_over_bare"
     out = sorted(results, key=lambda r: r[key])[rounds // 2]  # the median (of an even count, the higher middle)
     out["replay_same_traffic"] = all(r["replay_same_traffic"] for r in results)
@@ -148,12 +150,13 @@ _ROUND_KEYS = ("harness_step_ms", "bare_libsumo_step_ms", "bare_inference_ms", "
 
 def _round(routes: list[Route], label: str, agent: str, agent_config: str | None,
            bare_inference: Callable[[list[dict]], float] | None,
-           network_between: Callable[[list[dict]], Callable[[], object]] | None, snaps: list) -> dict:
+           network_between: Callable[[list[dict]], Callable[[], object]] | None, snaps: list,
+           vehicle: str = DEFAULT_VEHICLE) -> dict:
     """One pass of ``run_bench``'s closed-loop figures over ``routes``: means over the
     routes, each route's in ``per_route``; appends the sampled frames (ego, snapshot, plan,
     lights, props, stops) to ``snaps`` for the BEV figure."""
-    per = [_time_route(route, route_seed(0, k), agent, agent_config, bare_inference, network_between, snaps)
-           for k, route in enumerate(routes)]
+    per = [_time_route(route, route_seed(0, k), agent, agent_config, bare_inference, network_between, snaps,
+                       vehicle) for k, route in enumerate(routes)]
 
     def col(key: str) -> list[float]:  # a figure over the routes that have it
         return [r[key] for r in per if key in r]
@@ -191,7 +194,8 @@ def _round(routes: list[Route], label: str, agent: str, agent_config: str | None
 
 def _time_route(route: Route, seed: int, agent: str, agent_config: str | None,
                 bare_inference: Callable[[list[dict]], float] | None,
-                network_between: Callable[[list[dict]], Callable[[], object]] | None, snaps: list) -> dict:
+                network_between: Callable[[list[dict]], Callable[[], object]] | None, snaps: list,
+                vehicle: str = DEFAULT_VEHICLE) -> dict:
     """The figures of one route [ms], each timed right after its episode: the harness step,
     the bare libsumo step, and for a learned agent the bare inference, the replay with the
     network between steps and the network call there; ``network_share`` when the agent
@@ -204,7 +208,7 @@ def _time_route(route: Route, seed: int, agent: str, agent_config: str | None,
         if f.tick % SAMPLE_EVERY == 0:
             kept.append(f)
 
-    res = run_episode(route, agent, agent_config, seed, on_frame=keep)
+    res = run_episode(route, agent, agent_config, seed, on_frame=keep, vehicle=vehicle)
     if not res.steps:  # nothing to time: the agent could not be set up, or SUMO failed at once
         raise BenchError(f"route {route.id}: {res.status} before its first tick ({res.message.splitlines()[0]})")
     # the frame callback costs a dict write and, every SAMPLE_EVERY-th tick, a list append: negligible

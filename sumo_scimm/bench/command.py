@@ -11,6 +11,7 @@ from files.atomic import write_atomic
 from harness.common.errors import BadInput
 from harness.loop.agent import DEFAULT_AGENT, check_agent
 from sumo_scimm.bench.figures import EVAL_TARGET_S, OVERHEAD_TARGET, REPRODUCE_TARGET_S, RSS_TARGET_MB
+from sumo_scimm.options import add_vehicle_option
 
 
 def _print_loop(loop: dict) -> None:
@@ -72,7 +73,8 @@ def _bench(args: argparse.Namespace) -> int:
     infer_ms, network_between = bare_inference(args.agent, args.agent_config)
     try:
         loop = run_bench(args.routes, args.routes_count, agent=args.agent, agent_config=args.agent_config,
-                         bare_inference=infer_ms, network_between=network_between, rounds=args.rounds)
+                         bare_inference=infer_ms, network_between=network_between, rounds=args.rounds,
+                         vehicle=args.vehicle)
     except BenchError as exc:  # the agent's setup failed: its config is the user's input
         raise BadInput(f"bench: {exc}") from None
     r: dict = {"machine": m, "closed_loop": loop, "collect": collect_rate(args.routes, args.routes_count),
@@ -84,13 +86,14 @@ def _bench(args: argparse.Namespace) -> int:
     print(format_imm_bench(r["teacher"]))
     print(format_student_bench(r["student"]))
     if args.eval:
-        r["eval"] = eval_figures(args.agent, args.agent_config, args.workers)
+        r["eval"] = eval_figures(args.agent, args.agent_config, args.workers, vehicle=args.vehicle)
         _print_memory("eval", r["eval"])
     if args.soak:
         from scenarios import resolve_set
         from scenarios.routefile import read_routes
         n_set = len(read_routes(resolve_set(args.routes))[1])
-        r["soak"] = eval_figures(args.agent, args.agent_config, args.workers, args.routes, -(-args.soak // n_set))
+        r["soak"] = eval_figures(args.agent, args.agent_config, args.workers, args.routes, -(-args.soak // n_set),
+                                 args.vehicle)
         _print_memory("soak", r["soak"])
     if reproduce:
         r["reproduce"] = reproduce
@@ -132,4 +135,5 @@ def register(sub: argparse._SubParsersAction) -> None:
                          "shipped students (baseline, fixed, scimm) on --workers (docs/design.md §11: an expert run of "
                          "town12_short)")
     bn.add_argument("--json", help="also write the figures as JSON to this file")
+    add_vehicle_option(bn)
     bn.set_defaults(func=_bench)

@@ -35,18 +35,18 @@ EVAL_TARGET_S, OVERHEAD_TARGET, RSS_TARGET_MB, REPRODUCE_TARGET_S = 180.0, 2.0, 
 
 
 def eval_figures(agent: str, agent_config: str | None, workers: int, routes: str = "town12_short",
-                 repetitions: int = 1) -> dict:
+                 repetitions: int = 1, vehicle: str = "carla") -> dict:
     """Wall time and worker memory of ``sumo-scimm eval`` on ``routes`` (``repetitions``
-    passes) with ``workers`` workers, in a temporary run folder."""
+    passes) with ``workers`` workers and ego model ``vehicle``, in a temporary run folder."""
     from harness.runs.evaluate import Backend, evaluate
     with tempfile.TemporaryDirectory(prefix="sumo-scimm-bench-") as tmp:
         t0 = time.perf_counter()
         res = evaluate(routes, agent, agent_config, Path(tmp) / "run", repetitions=repetitions,
-                       backend=Backend(workers))
+                       backend=Backend(workers), vehicle=vehicle)
         wall = time.perf_counter() - t0
         return {"eval_wall_s": round(wall, 1), "eval_workers": workers, "eval_target_s": EVAL_TARGET_S,
                 "rss": res.memory, "rss_target_mb": RSS_TARGET_MB, "routes": routes, "repetitions": repetitions,
-                "route_runs": len(res.records)}
+                "route_runs": len(res.records), "vehicle": vehicle}
 
 
 def reproduce_figure(folder: str) -> dict:

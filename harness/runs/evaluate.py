@@ -5,7 +5,10 @@ raises ``BadInput`` with one line naming the problem and the fix.
 
 A run holds its folder for its whole length (harness.common.lock: a second ``eval``,
 ``collect`` or ``--resume`` on it is refused); before the first route the folder, its
-``logs`` (and ``episodes``) folder and the results file are checked writable. A file that
+``logs`` (and ``episodes``) folder and the results file are checked writable, and a
+results file of another run is never replaced (``check_results_file``). The agent is
+built once for its checks (harness.loop.agent.check_agent_setup, on the first route's
+plan); ``--workers`` is bounded by the cores (``check_workers``). A file that
 cannot be written later (a full disk) stops the run with one line naming it
 (``BadInput``); the routes recorded so far are kept and ``--resume`` finishes the run.
 """
@@ -22,7 +25,7 @@ from pathlib import Path
 
 from harness.common.errors import BadInput
 from harness.common.lock import FolderLock
-from harness.loop.agent import check_agent, load_agent
+from harness.loop.agent import check_agent_setup
 from harness.loop.episode import AGENT_TIMEOUT
 from harness.runs.jobs import Job, route_seed
 
@@ -32,6 +35,22 @@ from harness.runs.jobs import Job, route_seed
 # driving on 2 cores (500 in 483 s, docs/reliability.md).
 MAX_ROUTE_RUNS = 100_000
 _MAX_ID_DIGITS = 9  # a --routes-subset bound with more digits names no route of a set
+
+
+WORKERS_PER_CORE = 2  # local worker processes per core, at most: each holds a libsumo (~400 MB)
+
+
+def check_workers(workers: int | None) -> None:
+    """BadInput unless ``workers`` (local processes; None: one per core) is between 1 and
+    WORKERS_PER_CORE per core of this computer."""
+    cores = os.cpu_count() or 1
+    if workers is None:
+        return
+    if workers < 1:
+        raise BadInput(f"--workers {_clip(str(workers))}: must be >= 1")
+    if workers > WORKERS_PER_CORE * cores:
+        raise BadInput(f"--workers {_clip(str(workers))}: at most {WORKERS_PER_CORE * cores} ({WORKERS_PER_CORE} per "
+                       f"core, {cores} cores; each worker holds a simulator of about 400 MB); give fewer")
 
 
 @dataclass(frozen=True)
@@ -45,7 +64,9 @@ class Backend:
 
     def check(self) -> None:
         """BadInput unless the numbers make sense and Ray is installed if asked for."""
-        if self.workers is not None and self.workers < 1:
+        if self.name == "local":
+            check_workers(self.workers)
+        elif self.workers is not None and self.workers < 1:
             raise BadInput(f"--workers {self.workers}: must be >= 1")
         if self.address and self.name != "ray":
             raise BadInput("--address needs --backend ray")
@@ -128,6 +149,14 @@ def _known_lengths(routes: list) -> list:
             for r in routes]
 
 
+def first_plan(route):
+    """The plan of ``route`` (harness.sim.plan.GlobalPlan), on which the agent's checks
+    run a route's set-up calls."""
+    from harness.sim.plan import build_plan
+    from sumo_nets import load_net
+    return build_plan(route, load_net(route.town))
+
+
 def _route_set(name: str) -> Path:
     """The checked route file of a set name or path."""
     from scenarios import resolve_set
@@ -185,6 +214,27 @@ def stopped_by(exc: OSError, resume_hint: bool = True) -> BadInput:
     return BadInput(f"cannot write {path} ({exc.strerror or exc}): the run stopped; {fix}{then}")
 
 
+def check_results_file(checkpoint: Path, jobs: list[Job], resume: bool) -> None:
+    """BadInput if the results file ``checkpoint`` exists and is not this run's to write:
+    a fresh run never replaces one; a resumed run only one whose records are all route
+    runs of it."""
+    if not checkpoint.is_file() or checkpoint.stat().st_size == 0:
+        return
+    fix = "give another --checkpoint (or --out), or remove the file"
+    if not resume:
+        raise BadInput(f"--checkpoint {checkpoint} already holds a results file of another run: {fix}")
+    try:
+        records = json.loads(checkpoint.read_text())["_checkpoint"]["records"]
+        ids = {r["route_id"] for r in records}
+    except (OSError, ValueError, KeyError, TypeError, UnicodeDecodeError) as exc:
+        raise BadInput(f"--checkpoint {checkpoint} is not a results file ({type(exc).__name__}): {fix}") from None
+    ours = {f"RouteScenario_{j.key}" for j in jobs}
+    other = sorted(str(i) for i in ids - ours)
+    if other:
+        raise BadInput(f"--checkpoint {checkpoint} holds route {_clip(other[0], 40)}, not a route run of this run: "
+                       f"{fix}")
+
+
 def _run(jobs: list[Job], out: Path, resume: bool, backend: Backend, what: str, **kwargs) -> list[dict]:
     """harness.runs.runner.run_eval on the chosen backend, in the folder ``out`` its caller
     holds (FolderLock): a fresh run on a folder that holds records, an unwritable output,
@@ -192,6 +242,8 @@ def _run(jobs: list[Job], out: Path, resume: bool, backend: Backend, what: str, 
     from harness.runs.ray_backend import BackendError
     from harness.runs.runner import run_eval
     _fresh_or_resumed(out, resume, what)
+    if kwargs.get("checkpoint") is not None:
+        check_results_file(kwargs["checkpoint"], jobs, resume)
     folders = sorted({Path(j.log_dir) for j in jobs} | {Path(j.collect_dir) for j in jobs if j.collect_dir})
     check_writable(out, folders, kwargs.get("checkpoint"))
     try:
@@ -220,12 +272,12 @@ def evaluate(routes: str, agent: str, agent_config: str | None = None, out: Path
     backend.check()
     from scenarios.routefile import read_routes
     path = _route_set(routes)
-    agent, agent_config = check_agent(agent, agent_config)
     _, all_routes = read_routes(path)
     keep = set(select_routes(subset, [r.id for r in all_routes]))
     chosen = _known_lengths([r for r in all_routes if r.id in keep])
     if not chosen:
         raise BadInput(f"--routes-subset {subset!r} selects no route of {path.name}")
+    agent, agent_config, specs = check_agent_setup(agent, agent_config, first_plan(chosen[0]), agent_timeout)
     _check_count(repetitions, len(chosen))
     out = out if out is not None else Path("runs") / f"{path.stem}_{agent.replace(':', '.')}"
     place = {r.id: i for i, r in enumerate(all_routes)}
@@ -233,7 +285,7 @@ def evaluate(routes: str, agent: str, agent_config: str | None = None, out: Path
     jobs = [Job(k, r, rep, agent, agent_config, route_seed(seed, rep * len(all_routes) + place[r.id]),
                 str(out / "logs"), rules, agent_timeout=agent_timeout) for k, (rep, r) in enumerate(runs)]
     checkpoint = checkpoint if checkpoint is not None else out / "results.json"
-    sensors = [s["type"] for s in load_agent(agent).sensors()]
+    sensors = [s["type"] for s in specs]
     from harness.runs.runner import rss_summary
     with FolderLock(out):
         records = _run(jobs, out, resume, backend, "a run", checkpoint=checkpoint, sensors=sensors)

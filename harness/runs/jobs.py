@@ -19,12 +19,13 @@ from pathlib import Path
 import numpy as np
 
 from harness.common.atomic import savez_atomic
+from harness.common.lock import check_folder
 from harness.loop.episode import AGENT_TIMEOUT
 from harness.scoring.bench2drive import record_keys
 from harness.scoring.infractions import KEYS
 from harness.scoring.records import COUNT_KEYS, STABILITY
 from harness.scoring.scores import outside_lanes, route_record
-from harness.scoring.statuses import COMPLETED, FAILED_SIMULATION, crash_message
+from harness.scoring.statuses import COMPLETED, FAILED_AGENT, FAILED_SIMULATION, crash_message
 from scenarios.routefile import Route
 
 @dataclass(frozen=True)
@@ -40,6 +41,7 @@ class Job:
     collect_dir: str = ""  # if set, the episode is recorded there at 4 Hz (harness.expert.collect)
     route_file: str = ""
     agent_timeout: float = AGENT_TIMEOUT  # per-step deadline of run_step [s of wall time]
+    folder: tuple = ()  # (device, inode) of the run folder, checked before a file is written
 
     @property
     def key(self) -> str:
@@ -110,6 +112,8 @@ def run_job(job: Job) -> dict:
     res = run_episode(job.route, job.agent, job.agent_config, job.seed,
                       on_frame=recorder.on_frame if recorder else None, agent_timeout=job.agent_timeout)
     arrays = res.log.arrays()
+    if job.folder:
+        check_folder(Path(job.log_dir).parent, job.folder)
     savez_atomic(Path(job.log_dir) / f"{job.key}.npz", **arrays)
     values: dict = {}
     infractions, speed = {k: [] for k in KEYS}, []
@@ -133,10 +137,18 @@ def run_job(job: Job) -> dict:
     return record
 
 
-def crash_record(job: Job, reason: str) -> dict:
-    """The record of a route whose simulation or worker failed: "Failed - Simulation crashed"."""
-    return make_record(job, FAILED_SIMULATION, 0.0, float(job.route.length), 0.0, 0.0, 0, reason,
+def crash_record(job: Job, reason: str, status: str = FAILED_SIMULATION) -> dict:
+    """The record of a route whose simulation or worker failed: "Failed - Simulation crashed"
+    (or ``status``)."""
+    return make_record(job, status, 0.0, float(job.route.length), 0.0, 0.0, 0, reason,
                        {k: [] for k in KEYS}, {}, job.rules)
+
+
+def hung_record(job: Job) -> dict:
+    """The record of a route whose agent hung in a call past its deadline, its worker
+    killed: "Failed - Agent crashed" with the Leaderboard's timeout words."""
+    return crash_record(job, f"Agent took longer than {job.agent_timeout:g}s to return from a call "
+                             "(its worker process was ended)", FAILED_AGENT)
 
 
 def run_job_safely(job: Job) -> dict:

@@ -12,7 +12,10 @@ than the per-step deadline (``agent_timeout``, wall clock, default AGENT_TIMEOUT
 route as "Failed - Agent crashed", as the Leaderboard's agent watchdog does; the log up to
 that tick is kept. That includes what an agent raises that is not an Exception
 (SystemExit, KeyboardInterrupt, GeneratorExit); only the user's own Ctrl-C or SIGTERM
-(harness.common.stops) goes on to stop the run.
+(harness.common.stops) goes on to stop the run. An exception in ``destroy`` is kept at
+the end of the route's message. Every agent call runs under ``agent_call`` (its deadline
+published to a watching parent, harness.runs.runner, which kills a worker whose agent
+call does not return).
 """
 from __future__ import annotations
 

@@ -109,8 +109,7 @@ def load_checkpoint(path: str | Path) -> tuple[Student, dict]:
     except (KeyError, TypeError, ValueError, RuntimeError) as exc:
         raise BadInput(f"model checkpoint {p} does not match the student network ({type(exc).__name__}: "
                        f"{str(exc).splitlines()[0][:120]}); retrain with 'sumo-scimm train'") from None
-    manifest = dict(blob.get("manifest", {}))
-    _check_digest(p, blob["state_dict"], manifest)
+    manifest = _check_digest(p, blob["state_dict"], dict(blob.get("manifest", {})))
     model.eval()
     return model, manifest
 
@@ -128,9 +127,10 @@ def _check_crcs(p: Path) -> None:
                        "retrain with 'sumo-scimm train'")
 
 
-def _check_digest(p: Path, state_dict: dict, manifest: dict) -> None:
-    """BadInput unless the weights' hash is the manifest's (or, without one there, the
-    ``manifest.json`` beside ``p``'s); a checkpoint with neither is not checked."""
+def _check_digest(p: Path, state_dict: dict, manifest: dict) -> dict:
+    """The manifest, with the weights' hash it was checked against; BadInput unless the
+    weights' hash is the manifest's (or, without one there, the ``manifest.json`` beside
+    ``p``'s); a checkpoint with neither is not checked."""
     expected = manifest.get("weights_sha256")
     beside = p.with_name("manifest.json")
     if expected is None and beside.is_file():
@@ -141,3 +141,4 @@ def _check_digest(p: Path, state_dict: dict, manifest: dict) -> None:
     if expected is not None and weights_digest(state_dict) != expected:
         raise BadInput(f"model checkpoint {p}: its weights do not match the weights_sha256 of its manifest (the "
                        "file was changed); copy it again, or retrain with 'sumo-scimm train'")
+    return manifest if expected is None else {**manifest, "weights_sha256": expected}

@@ -6,7 +6,7 @@ raises ``BadInput`` with one line naming the problem and the fix.
 A run holds its folder for its whole length (harness.common.lock: a second ``eval``,
 ``collect`` or ``--resume`` on it is refused); before the first route the folder, its
 ``logs`` (and ``episodes``) folder and the results file are checked writable, and a
-results file of another run is never replaced (``check_results_file``). The agent is
+results file of another run is never replaced (harness.runs.runner.check_results_file). The agent is
 built once for its checks (harness.loop.agent.check_agent_setup, on the first route's
 plan); ``--workers`` is bounded by the cores (``check_workers``). A file that
 cannot be written later (a full disk) stops the run with one line naming it
@@ -214,27 +214,6 @@ def stopped_by(exc: OSError, resume_hint: bool = True) -> BadInput:
     return BadInput(f"cannot write {path} ({exc.strerror or exc}): the run stopped; {fix}{then}")
 
 
-def check_results_file(checkpoint: Path, jobs: list[Job], resume: bool) -> None:
-    """BadInput if the results file ``checkpoint`` exists and is not this run's to write:
-    a fresh run never replaces one; a resumed run only one whose records are all route
-    runs of it."""
-    if not checkpoint.is_file() or checkpoint.stat().st_size == 0:
-        return
-    fix = "give another --checkpoint (or --out), or remove the file"
-    if not resume:
-        raise BadInput(f"--checkpoint {checkpoint} already holds a results file of another run: {fix}")
-    try:
-        records = json.loads(checkpoint.read_text())["_checkpoint"]["records"]
-        ids = {r["route_id"] for r in records}
-    except (OSError, ValueError, KeyError, TypeError, UnicodeDecodeError) as exc:
-        raise BadInput(f"--checkpoint {checkpoint} is not a results file ({type(exc).__name__}): {fix}") from None
-    ours = {f"RouteScenario_{j.key}" for j in jobs}
-    other = sorted(str(i) for i in ids - ours)
-    if other:
-        raise BadInput(f"--checkpoint {checkpoint} holds route {_clip(other[0], 40)}, not a route run of this run: "
-                       f"{fix}")
-
-
 def _run(jobs: list[Job], out: Path, resume: bool, backend: Backend, what: str, **kwargs) -> list[dict]:
     """harness.runs.runner.run_eval on the chosen backend, in the folder ``out`` its caller
     holds (FolderLock): a fresh run on a folder that holds records, an unwritable output,
@@ -242,8 +221,6 @@ def _run(jobs: list[Job], out: Path, resume: bool, backend: Backend, what: str, 
     from harness.runs.ray_backend import BackendError
     from harness.runs.runner import run_eval
     _fresh_or_resumed(out, resume, what)
-    if kwargs.get("checkpoint") is not None:
-        check_results_file(kwargs["checkpoint"], jobs, resume)
     folders = sorted({Path(j.log_dir) for j in jobs} | {Path(j.collect_dir) for j in jobs if j.collect_dir})
     check_writable(out, folders, kwargs.get("checkpoint"))
     try:

@@ -34,6 +34,7 @@ import tempfile
 from pathlib import Path
 
 from harness.common.atomic import write_atomic
+from harness.common.lock import check_folder
 from harness.runs.jobs import Job, b2d_dir, crash_record, run_job_safely, worker_stats
 
 OUTPUT_KINDS = ("logs", "episodes", "b2d")  # folders of a task's files: Job.log_dir, Job.collect_dir, b2d_dir
@@ -115,7 +116,7 @@ def _run_task(job: Job) -> tuple[dict, dict, dict[str, bytes]]:
         folders = {kind: Path(tmp) / kind for kind in OUTPUT_KINDS}
         for d in folders.values():
             d.mkdir()
-        here = dataclasses.replace(job, log_dir=str(folders["logs"]),
+        here = dataclasses.replace(job, log_dir=str(folders["logs"]), folder=(),  # the driver checks the run folder
                                    collect_dir=str(folders["episodes"]) if job.collect_dir else "")
         rec = run_job_safely(here)
         files = {f"{kind}/{p.relative_to(d).as_posix()}": p.read_bytes() for kind, d in folders.items()
@@ -126,6 +127,8 @@ def _run_task(job: Job) -> tuple[dict, dict, dict[str, bytes]]:
 def _write_files(job: Job, files: dict[str, bytes]) -> None:
     """Write a task's files under the job's folders (atomically, as the local backend does)."""
     folders = {"logs": job.log_dir, "episodes": job.collect_dir, "b2d": str(b2d_dir(job))}
+    if job.folder:
+        check_folder(Path(job.log_dir).parent, job.folder)
     for name, data in files.items():
         kind, base = name.split("/", 1)
         path = Path(folders[kind]) / base

@@ -242,6 +242,27 @@ def _run_local(jobs: list[Job], workers: int, emit) -> None:
             p.join()
 
 
+def check_results_file(checkpoint: Path, jobs: list[Job], resume: bool) -> None:
+    """BadInput if the results file ``checkpoint`` exists and is not this run's to write:
+    a fresh run never replaces one; a resumed run only one whose records are all route
+    runs of it."""
+    if not checkpoint.is_file() or checkpoint.stat().st_size == 0:
+        return
+    fix = "give another --checkpoint (or --out), or remove the file"
+    if not resume:
+        raise BadInput(f"--checkpoint {checkpoint} already holds a results file of another run: {fix}")
+    try:
+        records = json.loads(checkpoint.read_text())["_checkpoint"]["records"]
+        ids = {r["route_id"] for r in records}
+    except (OSError, ValueError, KeyError, TypeError, UnicodeDecodeError) as exc:
+        raise BadInput(f"--checkpoint {checkpoint} is not a results file ({type(exc).__name__}): {fix}") from None
+    ours = {f"RouteScenario_{j.key}" for j in jobs}
+    other = sorted(str(i) for i in ids - ours)
+    if other:
+        raise BadInput(f"--checkpoint {checkpoint} holds route {other[0][:40]}, not a route run of this run: "
+                       f"{fix}")
+
+
 def run_eval(jobs: list[Job], out: Path, workers: int | None, resume: bool, show_progress: bool = True,
              checkpoint: Path | None = None, sensors: list[str] | None = None, backend: str = "local",
              address: str | None = None) -> list[dict]:
@@ -256,6 +277,7 @@ def run_eval(jobs: list[Job], out: Path, workers: int | None, resume: bool, show
     adding = not resume or bool({j.key for j in jobs} - {r["key"] for r in kept})
     if resume:  # before Ray starts: a refused resume starts nothing
         check_same_run(out, identity, kept, adding)
+    check_results_file(checkpoint or out / "results.json", jobs, resume)
     pool = None
     if backend == "ray":  # connect first: a cluster that cannot be reached leaves no file behind
         from harness.runs.ray_backend import RayPool

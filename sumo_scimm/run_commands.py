@@ -112,9 +112,12 @@ def _score(args: argparse.Namespace) -> int:
 
 
 def _report(args: argparse.Namespace) -> int:
+    from harness.common.lock import FolderLock
     from harness.scoring.report import ReportError, parse_arms, write_report
     try:
-        print(write_report(parse_arms(args.runs), Path(args.out)))
+        arms = parse_arms(args.runs)
+        with FolderLock(Path(args.out)):
+            print(write_report(arms, Path(args.out)))
     except ReportError as exc:
         raise BadInput(str(exc)) from None
     return 0
@@ -199,7 +202,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     rp.add_argument("runs", nargs="+", metavar="ARM",
                     help="run folder of 'sumo-scimm eval', or NAME=DIR[,DIR...] for an arm of several runs "
                          "(seeds); the first arm is the baseline")
-    rp.add_argument("--out", default="report", help="folder for the tables as .csv and .md: table3, table4 "
+    rp.add_argument("--out", type=out_arg, default="report", help="folder for the tables as .csv and .md: table3, table4 "
                     "(and _common), b2d, per_hazard (default report)")
     rp.set_defaults(func=_report)
 

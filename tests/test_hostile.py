@@ -79,12 +79,18 @@ def test_replay_refuses_a_run_whose_route_run_keys_are_paths(tmp_path, capsys, f
     assert files_under(tmp_path) == before
 
 
-# 2: replay holds its folder ---------------------------------------------------------------
-def test_replay_is_refused_on_a_folder_another_command_holds(tmp_path, capsys, follower_run):
-    out = tmp_path / "rep"
+# 2: every command that writes a folder holds it ------------------------------------------
+@pytest.mark.parametrize("command", [
+    ["replay", "--run", "{run}", "--agent", "route_follower"], ["report", "{run}"],
+    ["eval", "--routes", "town12_smoke", *FOLLOW], ["collect", "--routes", "town12_smoke"],
+    ["train", "--data", "{run}", "--teacher", "none"], ["reproduce", "--seeds", "1"]])
+def test_a_command_is_refused_on_a_folder_another_command_holds(tmp_path, capsys, follower_run, command):
+    out = tmp_path / "held"
     with FolderLock(out):
-        assert main(["replay", "--run", str(follower_run), "--agent", "route_follower", "--out", str(out)]) == 2
+        argv = [a.replace("{run}", str(follower_run)) for a in command]
+        assert main([*argv, "--out", str(out)]) == 2
     assert "in use by another run" in one_error_line(capsys)
+    assert not out.exists()  # the holder removed its folder; the refused command wrote nothing
 
 
 # 3: a run folder removed and made again mid-run -----------------------------------------

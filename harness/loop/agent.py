@@ -273,7 +273,7 @@ def _check_deadline(name: str, timeout: float):
 def check_agent(name: str, config: str | None, plan=None, timeout: float = 60.0) -> tuple[str, str | None]:
     """(agent, config) to run, checked: BadInput unless the agent loads and accepts its
     config (``--agent-config``, a file). ``--agent PATH.pt`` names a student checkpoint
-    (SPEC §3): it is ``--agent student --agent-config PATH.pt``. With a route's ``plan``
+    (docs/closed_loop.md): it is ``--agent student --agent-config PATH.pt``. With a route's ``plan``
     the agent also goes through a route's calls (``check_agent_setup``)."""
     return check_agent_setup(name, config, plan, timeout)[:2]
 

@@ -202,7 +202,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     rp.add_argument("runs", nargs="+", metavar="ARM",
                     help="run folder of 'sumo-scimm eval', or NAME=DIR[,DIR...] for an arm of several runs "
                          "(seeds); the first arm is the baseline")
-    rp.add_argument("--out", type=out_arg, default="report", help="folder for the tables as .csv and .md: table3, table4 "
+    rp.add_argument("--out", type=out_arg, default="report",
+                    help="folder for the tables as .csv and .md: table3, table4 "
                     "(and _common), b2d, per_hazard (default report)")
     rp.set_defaults(func=_report)
 

@@ -66,7 +66,8 @@ from harness.runs.provenance import OLD_RUN_FILE, RUN_FILE, check_same_run, run_
 
 # A worker whose agent call runs this long past its deadline [s] is killed by the parent
 # (the agent ignored, cancelled or swallowed the in-process alarm, or hangs outside
-# run_step); checked every WATCH_EVERY s, so a hung route ends within its deadline + 4 s and the time to end the process.
+# run_step); checked every WATCH_EVERY s, so a hung route ends within its deadline + 4 s
+# and the time it takes to end the process.
 KILL_AFTER, WATCH_EVERY = 3.0, 1.0
 
 

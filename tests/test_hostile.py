@@ -83,7 +83,8 @@ def test_replay_refuses_a_run_whose_route_run_keys_are_paths(tmp_path, capsys, f
 @pytest.mark.parametrize("command", [
     ["replay", "--run", "{run}", "--agent", "route_follower"], ["report", "{run}"],
     ["eval", "--routes", "town12_smoke", *FOLLOW], ["collect", "--routes", "town12_smoke"],
-    ["train", "--data", "{run}", "--teacher", "none"], ["reproduce", "--seeds", "1"]])
+    ["train", "--data", "{run}", "--teacher", "none"], ["reproduce", "--seeds", "1"],
+    ["nets", "build", "--town", "town12"]])
 def test_a_command_is_refused_on_a_folder_another_command_holds(tmp_path, capsys, follower_run, command):
     out = tmp_path / "held"
     with FolderLock(out):

@@ -1,7 +1,8 @@
 """One process per run folder: an exclusive lock held for the whole run.
 
-``eval``, ``collect``, ``replay`` and their ``--resume`` hold ``run.lock`` in the run folder while they
-run: a second command on the same folder is refused at once (``BadInput`` naming the
+``eval``, ``collect``, ``replay`` and their ``--resume`` (and ``report``, ``train``,
+``teacher``, ``reproduce``, ``nets build`` in their output folder) hold ``run.lock`` in
+the run folder while they run: a second command on the same folder is refused at once (``BadInput`` naming the
 holder's process id), so two runs never write into one folder, and a ``--resume`` never
 runs beside the run it would finish.
 

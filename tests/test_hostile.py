@@ -188,6 +188,15 @@ def test_the_agent_is_built_once_per_worker_and_once_for_the_checks(tmp_path, mo
     assert len(pids) == 2 + 1 and pids[0] == str(os.getpid())  # the checks, then one per worker
 
 
+def test_replay_builds_the_agent_once_for_its_checks_and_drives_with_it(tmp_path, monkeypatch, follower_run):
+    """--workers 1 replays in this process: the instance built for the checks drives."""
+    count = tmp_path / "built.txt"
+    monkeypatch.setenv("AGENT_COUNT", str(count))
+    assert main(["replay", "--run", str(follower_run), "--agent", "tests.hostile_agents:Counted", "--workers", "1",
+                 "--out", str(tmp_path / "rep")]) == 0
+    assert count.read_text().split() == [str(os.getpid())]
+
+
 # 9: hanging agents -------------------------------------------------------------------------
 TIMEOUT = 2.0  # --agent-timeout of these runs [s]
 

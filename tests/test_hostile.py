@@ -234,6 +234,21 @@ def test_an_agent_hanging_outside_run_step_ends_its_route_in_time(tmp_path, monk
     assert rec["status"] == "Failed - Agent crashed" and "took longer than 2s" in rec["message"]
 
 
+def test_a_ray_task_whose_agent_hangs_ends_and_the_run_goes_on(tmp_path, monkeypatch):
+    """Under --backend ray the task's own watch thread ends its process: the route is
+    recorded as its worker's death, the run goes on."""
+    pytest.importorskip("ray", reason="ray is not installed")
+    monkeypatch.setenv("CHECK_PID", str(os.getpid()))
+    monkeypatch.setenv("HANG_0", "ignore")
+    out = tmp_path / "run"
+    assert main(eval_argv(out, "--agent", "tests.hostile_agents:Hang", "--agent-timeout", str(TIMEOUT),
+                          "--backend", "ray", subset="0,1")) == 0
+    recs = {r["key"]: r for r in map(json.loads, (out / "records.jsonl").read_text().splitlines())}
+    assert recs["0_rep0"]["status"] == "Failed - Simulation crashed"
+    assert "worker process died" in recs["0_rep0"]["message"]
+    assert recs["1_rep0"]["status"] != "Failed - Simulation crashed"
+
+
 # 10: --resume on a damaged records.jsonl -------------------------------------------------
 @pytest.mark.parametrize("damage,words", [
     (lambda line: line.replace('"ds": ', '"ds": "abc", "x": ', 1), "unknown field"),

@@ -144,6 +144,14 @@ def crash_record(job: Job, reason: str, status: str = FAILED_SIMULATION) -> dict
                        {k: [] for k in KEYS}, {}, job.rules)
 
 
+# A worker whose agent call runs this long past its deadline [s] is ended (by the parent,
+# harness.runs.runner; in a Ray task by its own watch thread, harness.runs.ray_backend):
+# the agent ignored, cancelled or swallowed the in-process alarm, or hangs outside
+# run_step. Checked every WATCH_EVERY s, so a hung route ends within its deadline + 4 s
+# and the time it takes to end the process.
+KILL_AFTER, WATCH_EVERY = 3.0, 1.0
+
+
 def hung_record(job: Job) -> dict:
     """The record of a route whose agent hung in a call past its deadline, its worker
     killed: "Failed - Agent crashed" with the Leaderboard's timeout words."""

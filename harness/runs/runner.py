@@ -59,16 +59,9 @@ from harness.common.atomic import signals_held, write_atomic
 from harness.common.errors import BadInput
 from harness.common.lock import check_folder, folder_identity, open_nofollow
 from harness.loop.agent import watch_agent_calls
-from harness.runs.jobs import (Job, crash_record, hung_record, release_freed_memory, run_job_safely,
-                               worker_stats)
+from harness.runs.jobs import (KILL_AFTER, WATCH_EVERY, Job, crash_record, hung_record, release_freed_memory,
+                               run_job_safely, worker_stats)
 from harness.runs.provenance import OLD_RUN_FILE, RUN_FILE, check_same_run, run_identity
-
-
-# A worker whose agent call runs this long past its deadline [s] is killed by the parent
-# (the agent ignored, cancelled or swallowed the in-process alarm, or hangs outside
-# run_step); checked every WATCH_EVERY s, so a hung route ends within its deadline + 4 s
-# and the time it takes to end the process.
-KILL_AFTER, WATCH_EVERY = 3.0, 1.0
 
 
 def _worker(conn, deadline) -> None:

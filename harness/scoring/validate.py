@@ -24,7 +24,7 @@ and as many rows as it has records.
 
 ``record_line_problem`` checks one line of records.jsonl before ``--resume`` keeps it: a
 JSON object (``no_duplicates``: no key twice) with only the fields ``eval`` writes
-(harness.scoring.records), the ones every record has present, each of its type and in its
+(harness.scoring.records' RECORD_FIELDS and ``JSONL_FIELDS``), the ones every record has present, each of its type and in its
 range, and a Leaderboard record (``lb``) that passes ``record_problem``.
 """
 from __future__ import annotations
@@ -34,7 +34,7 @@ import json
 import math
 from pathlib import Path
 
-from harness.scoring.records import COUNT_KEYS, STABILITY
+from harness.scoring.records import COUNT_KEYS, RECORD_FIELDS, STABILITY
 
 # field -> (low, high, low is open)
 SCORE_RANGES = {"score_route": (0.0, 100.0, False), "score_penalty": (0.0, 1.0, False),
@@ -205,7 +205,9 @@ def _csv_ranges() -> dict[str, tuple[float, float, bool]]:
     return {**CSV_RANGES, **dict.fromkeys((*COUNT_KEYS, *STABILITY), _COUNT)}
 
 
-# records.jsonl: fields every record has, and the ones a record may have besides
+# records.jsonl: its fields beyond records.csv's (harness.scoring.records), the fields every
+# record has, and the checks of the ones a record may have besides
+JSONL_FIELDS = ("episode_status", "hazard", "efficiency", "smoothness", "lb")
 _REQUIRED = ("key", "route_id", "repetition", "status", "ds", "rc", "is", "seed", "lb")
 _OPTIONAL_TEXT = ("town", "message", "episode_status", "hazard")
 _OPTIONAL_NUMBERS = {"outside_lanes_pct": (0.0, 100.0, False), "collisions_per_km": _COUNT,
@@ -223,7 +225,7 @@ def record_line_problem(rec) -> str | None:
     """What is wrong with one parsed line of records.jsonl (None if nothing)."""
     if not isinstance(rec, dict):
         return f"is {_shown(rec)}, not a record"
-    known = set(_REQUIRED) | set(_OPTIONAL_TEXT) | set(_OPTIONAL_NUMBERS) | set(COUNT_KEYS) | set(STABILITY)
+    known = set(RECORD_FIELDS) | set(JSONL_FIELDS)
     unknown = sorted(set(rec) - known)
     if unknown:
         return f"has an unknown field {_shown(unknown[0], 40)}"

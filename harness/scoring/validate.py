@@ -25,8 +25,8 @@ and as many rows as it has records.
 ``record_line_problem`` checks one line of records.jsonl before ``--resume`` keeps it: a
 JSON object (``no_duplicates``: no key twice) with only the fields ``eval`` writes
 (harness.scoring.records' RECORD_FIELDS and ``JSONL_FIELDS``), the ones every record has
-present, each of its type and in its
-range, and a Leaderboard record (``lb``) that passes ``record_problem``.
+present, each of its type and in its range, and a Leaderboard record (``lb``) that passes
+``record_problem``.
 """
 from __future__ import annotations
 

@@ -25,6 +25,12 @@ Every number is checked as it is read: finite, and in its range (coordinates wit
 COORD_LIMIT of the origin, positions along lanes and lengths >= 0 and > 0, yaw within
 +-360 deg); a problem is a RouteFileError naming the element, the attribute and the
 range, with over-long values cut (``clip_numbers``).
+
+A route id names the route's files in a run folder (``logs/<id>_rep<k>.npz``, its dataset
+episode): it must be a safe file name, 1 to 64 letters, digits, ``_``, ``-`` or ``.``,
+starting with a letter or digit (``ROUTE_ID``); ``../x``, ``/tmp/x`` or ``a/b`` is a
+RouteFileError before anything runs. The set's ``seed`` attribute, if given, is an
+integer >= 0.
 """
 from __future__ import annotations
 
@@ -44,6 +50,16 @@ COORD_LIMIT = 1e7  # |x|, |y|, |z| and positions along a lane [m]: 10,000 km, be
 YAW_LIMIT = 360.0  # |yaw| of a trigger point [deg]
 _LONG_NUMBER = re.compile(r"\d{20,}")
 _VALUE_WIDTH = 16  # characters of an attribute value quoted in a message
+ROUTE_ID = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.-]{0,63}")  # a route id: a safe file name
+
+
+def id_problem(rid: str) -> str | None:
+    """Why ``rid`` cannot be a route id (it names files in a run folder), or None."""
+    if ROUTE_ID.fullmatch(rid):
+        return None
+    shown = rid if len(rid) <= 40 else f"{rid[:40]}... ({len(rid)} characters)"
+    return (f"route id {shown!r} is not a safe file name: use 1 to 64 letters, digits, '_', '-' or '.', "
+            "starting with a letter or digit")
 
 
 def clip_numbers(text: str) -> str:
@@ -126,6 +142,9 @@ def parse_route(el: Element) -> Route:
     rid = el.get("id")
     if rid is None or not rid.strip():
         raise RouteFileError(None, "a <route> has no id")
+    bad = id_problem(rid)
+    if bad:
+        raise RouteFileError(None, bad)
     town = el.get("town")
     if not town:
         raise RouteFileError(rid, "no town attribute")
@@ -169,6 +188,9 @@ def set_bounds(root: Element, path: Path) -> tuple[float, float]:
         raise RouteFileError(None, f"{path}: <routes> {exc}") from None
     if lo > hi:
         raise RouteFileError(None, f"{path}: <routes> min_length {lo:g} is above max_length {hi:g}")
+    seed = root.get("seed")
+    if seed is not None and not re.fullmatch(r"[0-9]{1,20}", seed.strip()):
+        raise RouteFileError(None, f"{path}: <routes> seed={seed[:_VALUE_WIDTH]!r} is not an integer >= 0")
     return lo, hi
 
 
@@ -191,6 +213,7 @@ def load_tree(path: Path) -> Element:
 def read_routes(path: Path) -> tuple[dict[str, str], list[Route]]:
     """(set attributes, routes) of a route file; raises RouteFileError on the first problem."""
     root = load_tree(path)
+    set_bounds(root, path)
     routes = [parse_route(el) for el in root.findall("route")]
     if not routes:
         raise RouteFileError(None, f"{path}: no <route> elements")

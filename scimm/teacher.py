@@ -51,8 +51,10 @@ BATCH = 16  # episodes per IMM batch
 
 
 def episode_files(data: Path) -> list[Path]:
-    """The dataset's episode files, sorted by name."""
-    return sorted((Path(data) / "episodes").glob("*.npz"))
+    """The dataset's episode files, sorted by name; BadInput if one has no record
+    (harness.expert.dataset.episode_files)."""
+    from harness.expert.dataset import episode_files as recorded
+    return recorded(Path(data))
 
 
 def dataset_fingerprint(files: Sequence[Path]) -> str:

@@ -7,6 +7,7 @@ import os
 from pathlib import Path
 
 from harness.common.errors import BadInput
+from harness.common.lock import FolderLock
 from sumo_scimm.options import add_backend_options, add_vehicle_option, backend_of
 
 # = model.train.EPOCHS, EPOCH_STEPS, PATIENCE, ("none", *model.data.TEACHERS), model.loss.LossWeights()'s
@@ -47,7 +48,8 @@ def _train(args: argparse.Namespace) -> int:
                       val=Path(args.val) if args.val else None, seed=args.seed, epochs=args.epochs,
                       epoch_steps=args.epoch_steps, patience=args.patience,
                       cache_dir=Path(args.cache) if args.cache else None, weights=weights)
-    print(f"model checkpoint: {train(cfg)}")
+    with FolderLock(cfg.out):  # one command per output folder (harness.common.lock)
+        print(f"model checkpoint: {train(cfg)}")
     return 0
 
 
@@ -84,8 +86,9 @@ def _reproduce(args: argparse.Namespace) -> int:
             resolve_set(name)
         except UnknownSet as exc:
             raise BadInput(str(exc)) from None
-    print(reproduce(Path(args.out), seeds, args.repetitions, args.epochs, backend, sets, arms, second,
-                    args.vehicle))
+    with FolderLock(Path(args.out)):
+        print(reproduce(Path(args.out), seeds, args.repetitions, args.epochs, backend, sets, arms, second,
+                        args.vehicle))
     return 0
 
 

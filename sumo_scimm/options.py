@@ -29,6 +29,14 @@ def seed_arg(text: str) -> int:
     return value
 
 
+def out_arg(text: str) -> str:
+    """argparse type of a command's output folder: not empty (an empty --out would name the
+    current folder, or fall back to a default one)."""
+    if not text.strip():
+        raise argparse.ArgumentTypeError(f"{text!r} is empty: give a folder")
+    return text
+
+
 def add_agent_options(p: argparse.ArgumentParser) -> None:
     """--agent and --agent-config."""
     p.add_argument("--agent", default=DEFAULT_AGENT,

@@ -5,13 +5,13 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from harness.common.errors import BadInput
+from sumo_scimm.options import out_arg
 
 
 def _replay(args: argparse.Namespace) -> int:
     from harness.runs.replay import replay
-    if args.workers is not None and args.workers < 1:
-        raise BadInput(f"--workers {args.workers}: must be >= 1")
+    from harness.runs.evaluate import check_workers
+    check_workers(args.workers)
     md = replay(Path(args.run), args.agent, Path(args.out), routes=args.routes, subset=args.routes_subset,
                 workers=args.workers)
     print(md)
@@ -27,7 +27,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     rp.add_argument("--agent", action="append", required=True,
                     help="agent to replay (name, module:Class or a student checkpoint .pt); repeat for several, "
                          "the first is the one the others are compared with")
-    rp.add_argument("--out", required=True, help="output folder (replay.csv, table.csv|md, outputs/)")
+    rp.add_argument("--out", type=out_arg, required=True, help="output folder (replay.csv, table.csv|md, outputs/)")
     rp.add_argument("--routes", help="route set or file the reference drove (default: found among the shipped "
                     "sets by the routes' hashes in its run.jsonc)")
     rp.add_argument("--routes-subset", help="route ids to replay: '3', '0-9', '1,4,7' (default all)")

@@ -13,7 +13,7 @@ from pathlib import Path
 from files.atomic import write_atomic
 from harness.common.errors import BadInput
 from harness.loop.episode import AGENT_TIMEOUT
-from sumo_scimm.options import add_agent_options, add_backend_options, add_vehicle_option, backend_of, seed_arg
+from sumo_scimm.options import add_agent_options, add_backend_options, add_vehicle_option, backend_of, out_arg, seed_arg
 
 RULES = ("lb2.0", "lb2.1", "b2d")
 
@@ -122,9 +122,12 @@ def _score(args: argparse.Namespace) -> int:
 
 
 def _report(args: argparse.Namespace) -> int:
+    from harness.common.lock import FolderLock
     from harness.scoring.report import ReportError, parse_arms, write_report
     try:
-        print(write_report(parse_arms(args.runs), Path(args.out)))
+        arms = parse_arms(args.runs)
+        with FolderLock(Path(args.out)):
+            print(write_report(arms, Path(args.out)))
     except ReportError as exc:
         raise BadInput(str(exc)) from None
     return 0
@@ -142,13 +145,14 @@ def _collect(args: argparse.Namespace) -> int:
 def _data_show(args: argparse.Namespace) -> int:
     import pandas as pd
 
-    from harness.expert.dataset import build_index, describe
+    from harness.expert.dataset import build_index, describe, episode_files
     folder = Path(args.dir)
     if not (folder / "episodes").is_dir():
         raise BadInput(f"{folder} is not a dataset folder (no episodes/; make one with 'sumo-scimm collect')")
     if not any((folder / "episodes").glob("*.npz")):
         raise BadInput(f"{folder}/episodes holds no episode: finish the collection with 'sumo-scimm collect ... "
                        "--resume'")
+    episode_files(folder)  # BadInput if an episode has no record (a stopped collection)
     path = folder / "index.csv"
     try:  # the index collect wrote, or one read from the episodes (show writes nothing)
         index = pd.read_csv(path) if path.is_file() else build_index(folder, write=False)
@@ -170,14 +174,14 @@ def _add_eval(sub: argparse._SubParsersAction) -> None:
     e.add_argument("--workers", type=int, default=None,
                    help="worker processes, one libsumo each (default: number of cores; with --backend ray, "
                         "every CPU of the Ray cluster)")
-    e.add_argument("--out", help="run folder (default runs/<set>_<agent>)")
+    e.add_argument("--out", type=out_arg, help="run folder (default runs/<set>_<agent>)")
     e.add_argument("--resume", action="store_true", help="finish an interrupted run in --out")
     e.add_argument("--seed", type=seed_arg, default=0, help="run seed; each route derives its own (default 0)")
     e.add_argument("--checkpoint", help="Leaderboard results JSON (default <out>/results.json)")
     e.add_argument("--rules", default="lb2.0", choices=RULES, help="scoring rules (default lb2.0)")
     e.add_argument("--agent-timeout", type=float, default=AGENT_TIMEOUT,
-                   help=f"seconds one run_step may take before the route ends as 'Failed - Agent crashed' "
-                        f"(default {AGENT_TIMEOUT:g})")
+                   help=f"seconds one agent call (run_step, setup, ...) may take before the route ends as "
+                        f"'Failed - Agent crashed' (default {AGENT_TIMEOUT:g})")
     add_vehicle_option(e)
     add_backend_options(e)
     e.set_defaults(func=_eval)
@@ -211,13 +215,14 @@ def register(sub: argparse._SubParsersAction) -> None:
                     help="run folder of 'sumo-scimm eval', or NAME=DIR[,DIR...] for an arm of several runs "
                          "(seeds, in seed order: the i-th folder of every arm is paired with the i-th of the "
                          "others); the first arm is the baseline")
-    rp.add_argument("--out", default="report", help="folder for the tables as .csv and .md: table3, table4 "
+    rp.add_argument("--out", type=out_arg, default="report",
+                     help="folder for the tables as .csv and .md: table3, table4 "
                     "(and _common), b2d, per_hazard (default report)")
     rp.set_defaults(func=_report)
 
     co = sub.add_parser("collect", help="drive the expert over a route set and record a dataset at 4 Hz")
     co.add_argument("--routes", required=True, help="route set name or route file (e.g. train)")
-    co.add_argument("--out", required=True, help="dataset folder")
+    co.add_argument("--out", type=out_arg, required=True, help="dataset folder")
     co.add_argument("--workers", type=int, default=None,
                     help="worker processes (default: cores; with --backend ray, every CPU of the cluster)")
     co.add_argument("--repetitions", type=int, default=1, help="runs per route, each with its own seed (default 1)")

@@ -25,12 +25,14 @@ METHOD_CHOICES = (*tch.METHODS, "all")
 def _teacher(args: argparse.Namespace) -> int:
     from scimm.lag import format_lag, format_stops_starts
     from scimm.table2 import format_meaning, format_residuals, format_table2
+    from harness.common.lock import FolderLock
     folder, files = dataset_episodes(args.data)
-    make_teachers(folder, files, tch.METHODS if args.method == "all" else (args.method,), args.path_state)
-    if not all(tch.is_complete(folder, m) for m in tch.METHODS):
-        print(f"Table 2 needs every teacher ({', '.join(tch.METHODS)}): run with --method all")
-        return 0
-    tables = write_tables(folder, files)
+    with FolderLock(folder):  # no collect (or other teacher) writes into the dataset meanwhile
+        make_teachers(folder, files, tch.METHODS if args.method == "all" else (args.method,), args.path_state)
+        if not all(tch.is_complete(folder, m) for m in tch.METHODS):
+            print(f"Table 2 needs every teacher ({', '.join(tch.METHODS)}): run with --method all")
+            return 0
+        tables = write_tables(folder, files)
     table, meaning, residuals = tables["table2"], tables["mode_meaning"], tables["fit_residuals"]
     print(f"Table 2 ({len(files)} episodes; groups = dominant SC-IMM mode) -> {folder / 'teacher' / 'table2.csv'}")
     print(format_table2(table))

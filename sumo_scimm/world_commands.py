@@ -9,6 +9,7 @@ from pathlib import Path
 from tqdm import tqdm
 
 from harness.common.errors import BadInput
+from harness.common.lock import FolderLock
 from sumo_scimm.options import EXIT_BAD_INPUT, seed_arg
 
 
@@ -19,9 +20,10 @@ def _nets_build(args: argparse.Namespace) -> int:
     if args.seed is not None and len(towns) != 1:
         raise BadInput("--seed needs --town (each town has its own default seed)")
     out = Path(args.out) if args.out else sumo_nets.NETS_DIR
-    for town in tqdm(towns, desc="netconvert", unit="town", disable=None):
-        path = sumo_nets.build(town, args.seed, out)
-        tqdm.write(f"{town}: {path}")
+    with FolderLock(out):  # one command per output folder (harness.common.lock)
+        for town in tqdm(towns, desc="netconvert", unit="town", disable=None):
+            path = sumo_nets.build(town, args.seed, out)
+            tqdm.write(f"{town}: {path}")
     return 0
 
 

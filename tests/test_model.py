@@ -14,7 +14,7 @@ import torch
 from sumo_scimm.cli import BadInput, main
 from harness.expert.dataset import Episode
 from model import cache as bevcache
-from model.checkpoint import load_checkpoint, save_checkpoint
+from model.checkpoint import load_checkpoint, save_checkpoint, weights_digest
 from model.data import StudentData, move
 from model.loss import BASELINE, LossWeights, mode_loss, origin_loss, phi, scimm_loss, total_loss
 from model.network import MODES, NetConfig, Student
@@ -265,7 +265,7 @@ def test_a_model_checkpoint_round_trips(tmp_path):
     with torch.no_grad():
         for k in ("path", "speed_wps", "mode_logits"):
             torch.testing.assert_close(loaded(*x)[k], m(*x)[k], rtol=0, atol=0)
-    assert manifest == {"seed": 1, "teacher": "none"}
+    assert manifest == {"seed": 1, "teacher": "none", "weights_sha256": weights_digest(m.state_dict())}
     assert (tmp_path / "manifest.json").is_file()
     assert load_checkpoint(tmp_path)[1] == manifest  # a training --out folder works too
 

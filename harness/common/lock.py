@@ -1,7 +1,8 @@
 """One process per run folder: an exclusive lock held for the whole run.
 
-``eval``, ``collect`` and their ``--resume`` hold ``run.lock`` in the run folder while they
-run: a second command on the same folder is refused at once (``BadInput`` naming the
+``eval``, ``collect``, ``replay`` and their ``--resume`` (and ``report``, ``train``,
+``teacher``, ``reproduce``, ``nets build`` in their output folder) hold ``run.lock`` in
+the run folder while they run: a second command on the same folder is refused at once (``BadInput`` naming the
 holder's process id), so two runs never write into one folder, and a ``--resume`` never
 runs beside the run it would finish.
 
@@ -10,6 +11,12 @@ released when its process ends, however it ends (kill -9, power loss), so a lock
 by a dead process is simply taken over. The file holds the holder's pid (for the message)
 and is removed when the run ends. On a file system without ``flock`` the pid decides: a
 lock whose process is gone is taken over.
+
+The lock file, and every file a run appends to, is opened without following a symbolic
+link (``open_nofollow``): a link placed there is refused, its target left alone. A run
+also checks before each write that its folder is still the one it locked
+(``check_folder``): a folder removed and made again under the same path meanwhile stops the
+old run instead of mixing its files with the new one's.
 
 Locking creates the folder (and the missing folders above it); if the command then stops
 before writing anything there (a refused resume, an unwritable results path), those
@@ -56,6 +63,36 @@ def _same_file(fd: int, path: Path) -> bool:
     return (a.st_dev, a.st_ino) == (b.st_dev, b.st_ino)
 
 
+def open_nofollow(path: Path, flags: int) -> int:
+    """``os.open(path, flags)`` that refuses a symbolic link at ``path`` (BadInput): a run
+    never writes through a link into a file elsewhere."""
+    try:
+        return os.open(path, flags | getattr(os, "O_NOFOLLOW", 0), 0o644)
+    except OSError as exc:
+        if exc.errno == errno.ELOOP:
+            raise BadInput(f"{path} is a symbolic link: a run writes only its own files; remove the link, "
+                           "or choose another folder") from None
+        raise
+
+
+def folder_identity(folder: Path) -> tuple[int, int]:
+    """(device, inode) of ``folder``: which folder it is, whatever its path names later."""
+    st = os.stat(folder)
+    return st.st_dev, st.st_ino
+
+
+def check_folder(folder: Path, identity: tuple[int, int]) -> None:
+    """OSError (ESTALE, naming ``folder``) unless ``folder`` is still the folder of
+    ``identity``: a run folder removed (and perhaps made again) while a run writes into it
+    must not get the rest of that run's files."""
+    try:
+        same = folder_identity(folder) == tuple(identity)
+    except OSError:
+        same = False
+    if not same:
+        raise OSError(errno.ESTALE, "the run folder was removed or replaced while the run ran", str(folder))
+
+
 class FolderLock:
     """``with FolderLock(folder):`` the folder is this process's until the block ends.
 
@@ -90,7 +127,7 @@ class FolderLock:
     def _acquire(self) -> int:
         """The open, locked lock file holding this pid; BadInput if a live process holds it."""
         while True:
-            fd = os.open(self.path, os.O_RDWR | os.O_CREAT, 0o644)
+            fd = open_nofollow(self.path, os.O_RDWR | os.O_CREAT)
             try:
                 fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
             except BlockingIOError:

@@ -98,11 +98,37 @@ INDEX_COLUMNS = ("t", "x", "y", "v", "command", "next_command", "target_speed", 
                  "cue_changed_route", "flag_vehicle", "flag_walker", "flag_light", "flag_stop")
 
 
+def episode_files(folder: Path) -> list[Path]:
+    """The dataset's episode files, sorted by name. BadInput if one has no record in the
+    folder's records.jsonl (a collection stopped between saving an episode and recording
+    its route: the episode is not known to be complete); a folder without records.jsonl
+    (an episode set made by hand) is taken as it is."""
+    import json
+    files = sorted((Path(folder) / "episodes").glob("*.npz"))
+    records = Path(folder) / "records.jsonl"
+    if not records.is_file():
+        return files
+    keys = set()
+    for line in records.read_text(errors="replace").splitlines():
+        try:
+            rec = json.loads(line)
+        except ValueError:
+            continue
+        if isinstance(rec, dict) and isinstance(rec.get("key"), str):
+            keys.add(rec["key"])
+    unrecorded = [f.stem for f in files if f.stem not in keys]
+    if unrecorded:
+        raise BadInput(f"{folder}: episode {unrecorded[0]} has no record in records.jsonl (the collection was "
+                       f"stopped): finish it with 'sumo-scimm collect ... --out {folder} --resume'")
+    return files
+
+
 def build_index(folder: Path, write: bool = True) -> pd.DataFrame:
-    """One row per frame of every episode in ``folder/episodes``; written to index.csv
-    unless ``write`` is False. A damaged episode file raises (OSError, ValueError, KeyError)."""
+    """One row per frame of every episode in ``folder/episodes`` (``episode_files``); written
+    to index.csv unless ``write`` is False. A damaged episode file raises (OSError,
+    ValueError, KeyError)."""
     rows = []
-    for ep in sorted((folder / "episodes").glob("*.npz")):
+    for ep in episode_files(folder):
         with np.load(ep, allow_pickle=False) as z:
             n = len(z["t"])
             df = pd.DataFrame({c: z[c] for c in INDEX_COLUMNS})

@@ -1,9 +1,22 @@
 """The agent API, mirroring the CARLA Leaderboard's ``AutonomousAgent`` (docs/design.md §3).
 
-Call order per route: ``set_global_plan(plan)``, ``setup(config)``, ``sensors()`` once
-(validated before the route starts), ``run_step(input_data, timestamp)`` every 0.05 s
-tick, ``destroy()`` at the end (also after a crash). The agent never gets a simulator
-handle: everything it sees comes through ``input_data`` keyed by its sensors' ids.
+A user's agent module needs one import: ``from harness.loop.agent import AutonomousAgent,
+Control, Prediction``.
+
+Life of an agent: it is built without arguments once for the checks (``check_agent``:
+``check_config(config)``, then the calls of a route below on the first route's plan, its
+``sensors()`` validated after ``setup()``; a failure is one line before any route runs),
+and once per worker process, which drives all its routes with that instance (``agent_for``;
+an instance whose route ended in an agent failure is built again). Call order per route:
+``set_global_plan(plan)``, ``setup(config)``, ``sensors()`` once (validated before the
+route starts), ``run_step(input_data, timestamp)`` every 0.05 s tick, ``destroy()`` at the
+end (also after a crash). The agent never gets a simulator handle: everything it sees
+comes through ``input_data`` keyed by its sensors' ids.
+
+Every agent call runs under a deadline (``agent_call``): in a worker the parent process
+reads it and kills a worker whose agent call runs past it (harness.runs.runner), so an
+agent that hangs in any call, ignores or cancels the alarm, or swallows the interruption
+cannot hang a run.
 
 Sensors an agent may declare (``{"type": ..., "id": ...}``):
 
@@ -24,7 +37,12 @@ waypoints it predicted (used for stability metrics and plots).
 """
 from __future__ import annotations
 
+import contextlib
 import importlib
+import os
+import signal
+import threading
+import time
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -32,6 +50,9 @@ import numpy as np
 
 from controller.vehicle import Control
 from harness.common.errors import BadInput
+from harness.common.stops import is_stop, watch_stops
+
+__all__ = ["AutonomousAgent", "Control", "Prediction", "SensorConfigurationInvalid", "SENSOR_TYPES"]
 
 SENSOR_TYPES = ("speed", "pose", "target_point", "command", "bev", "world")
 
@@ -87,13 +108,18 @@ class AutonomousAgent:
 
 def validate_sensors(specs: list[dict]) -> None:
     """Raise SensorConfigurationInvalid naming the first bad sensor spec."""
+    if not isinstance(specs, (list, tuple)):
+        raise SensorConfigurationInvalid(f"sensors() returned {_shown(specs)}, not a list of "
+                                         "{'type': ..., 'id': ...} dicts")
     ids = set()
     for spec in specs:
         if not isinstance(spec, dict) or "type" not in spec or "id" not in spec:
             raise SensorConfigurationInvalid(f"sensor {spec!r} needs a 'type' and an 'id'")
         if spec["type"] not in SENSOR_TYPES:
             raise SensorConfigurationInvalid(
-                f"sensor {spec['id']!r} has unknown type {spec['type']!r} (known: {', '.join(SENSOR_TYPES)})")
+                f"sensor {_shown(spec['id'])} has unknown type {spec['type']!r} (known: {', '.join(SENSOR_TYPES)})")
+        if not isinstance(spec["id"], str) or not isinstance(spec["type"], str):
+            raise SensorConfigurationInvalid(f"sensor {_shown(spec)}: its 'type' and 'id' must be text")
         if spec["id"] in ids:
             raise SensorConfigurationInvalid(f"sensor id {spec['id']!r} is used twice")
         ids.add(spec["id"])
@@ -123,16 +149,33 @@ def resolve_agent(name: str) -> str:
     return target
 
 
+def _shown(value, width: int = 40) -> str:
+    """``value`` for a message: its repr, cut to ``width`` characters."""
+    text = repr(value)
+    return text if len(text) <= width else f"{text[:width]}... ({len(text)} characters)"
+
+
+def _reason(exc: BaseException) -> str:
+    """``Type: first line of the message`` of an exception, cut to one readable line."""
+    text = str(exc).strip().splitlines()[0] if str(exc).strip() else ""
+    return f"{type(exc).__name__}: {text[:160]}" if text else type(exc).__name__
+
+
 def load_agent(name: str) -> AutonomousAgent:
-    """Instantiate an agent by CLI name or ``module:Class`` (imported, never via sys.path edits)."""
+    """Instantiate an agent by CLI name or ``module:Class`` (imported, never via sys.path
+    edits). Whatever its module or constructor raises (SystemExit and KeyboardInterrupt
+    included, unless the user's own Ctrl-C or SIGTERM arrived: harness.common.stops) is an
+    AgentLoadError naming the agent."""
     module_name, _, cls_name = resolve_agent(name).partition(":")
+    stops = watch_stops()
     try:
         module = importlib.import_module(module_name)
     except ImportError as exc:
         raise AgentLoadError(f"agent {name!r}: cannot import {module_name!r} ({exc})") from None
-    except Exception as exc:  # noqa: BLE001 - an error in the user's module is reported, not raised
-        raise AgentLoadError(f"agent {name!r}: importing {module_name!r} failed "
-                             f"({type(exc).__name__}: {exc})") from None
+    except BaseException as exc:  # noqa: BLE001 - an error in the user's module is reported, not raised
+        if is_stop(exc, stops):
+            raise
+        raise AgentLoadError(f"agent {name!r}: importing {module_name!r} failed ({_reason(exc)})") from None
     cls = getattr(module, cls_name, None)
     if cls is None or not isinstance(cls, type):
         raise AgentLoadError(f"agent {name!r}: {module_name!r} has no class {cls_name!r}")
@@ -140,15 +183,108 @@ def load_agent(name: str) -> AutonomousAgent:
         raise AgentLoadError(f"agent {name!r}: {cls_name} does not subclass harness.loop.agent.AutonomousAgent")
     try:
         return cls()
-    except Exception as exc:  # noqa: BLE001
-        raise AgentLoadError(f"agent {name!r}: {cls_name}() failed ({type(exc).__name__}: {exc}); "
+    except BaseException as exc:  # noqa: BLE001
+        if is_stop(exc, stops):
+            raise
+        raise AgentLoadError(f"agent {name!r}: {cls_name}() failed ({_reason(exc)}); "
                              "an agent is built without arguments (its config goes to setup())") from None
 
 
-def check_agent(name: str, config: str | None) -> tuple[str, str | None]:
+_built: dict[str, AutonomousAgent] = {}  # this process's agents by name (agent_for)
+
+
+def agent_for(name: str) -> AutonomousAgent:
+    """This process's instance of agent ``name``, built on first use: a worker drives all
+    its routes with one instance (``setup`` starts each route afresh)."""
+    agent = _built.get(name)
+    if agent is None:
+        agent = _built[name] = load_agent(name)
+    return agent
+
+
+def forget_agent(name: str) -> None:
+    """Drop this process's instance of ``name`` (after it failed): the next route builds one."""
+    _built.pop(name, None)
+
+
+# The deadline of the agent call running in this process, shared with the parent that
+# watches it (harness.runs.runner): a monotonic time [s], 0.0 while no agent call runs.
+_deadline = None
+
+
+def watch_agent_calls(shared) -> None:
+    """Publish every agent call's deadline in ``shared`` (a multiprocessing double)."""
+    global _deadline
+    _deadline = shared
+
+
+@contextlib.contextmanager
+def agent_call(timeout: float):
+    """Run the block (one call into the agent) under a deadline ``timeout`` [s of wall
+    time] that the watching parent enforces; without a watcher the block runs as is."""
+    shared = _deadline
+    if shared is None:
+        yield
+        return
+    shared.value = time.monotonic() + timeout
+    try:
+        yield
+    finally:
+        shared.value = 0.0
+
+
+HARD_GRACE = 10.0  # [s] after its deadline, a check the alarm could not end ends the process
+
+
+class CheckTimeout(BaseException):
+    """An agent call of the checks ran past its deadline (a BaseException: an agent's
+    ``except Exception`` does not swallow it)."""
+
+
+def _on_check_alarm(signum, frame) -> None:
+    raise CheckTimeout()
+
+
+@contextlib.contextmanager
+def _check_deadline(name: str, timeout: float):
+    """The checks' agent calls under ``timeout`` [s]: a SIGALRM interrupts them (main
+    thread); an agent that ignores, cancels or swallows it is ended with the process, one
+    line and exit code 2, ``HARD_GRACE`` s later."""
+    def hard_stop() -> None:
+        os.write(2, f"sumo-scimm: error: agent {name!r}: its checks did not return within {timeout:g} s "
+                    "(it hangs in its module, constructor, setup(), sensors() or destroy()); fix the agent\n".encode())
+        os._exit(2)
+    timer = threading.Timer(timeout + HARD_GRACE, hard_stop)
+    timer.daemon = True
+    timer.start()
+    alarm = threading.current_thread() is threading.main_thread() and hasattr(signal, "setitimer")
+    previous = signal.signal(signal.SIGALRM, _on_check_alarm) if alarm else None
+    if alarm:
+        signal.setitimer(signal.ITIMER_REAL, timeout)
+    try:
+        yield
+    finally:
+        timer.cancel()
+        if alarm:
+            signal.setitimer(signal.ITIMER_REAL, 0)
+            signal.signal(signal.SIGALRM, previous)
+
+
+def check_agent(name: str, config: str | None, plan=None, timeout: float = 60.0) -> tuple[str, str | None]:
     """(agent, config) to run, checked: BadInput unless the agent loads and accepts its
     config (``--agent-config``, a file). ``--agent PATH.pt`` names a student checkpoint
-    (docs/design.md §3): it is ``--agent student --agent-config PATH.pt``."""
+    (docs/closed_loop.md): it is ``--agent student --agent-config PATH.pt``. With a route's ``plan``
+    the agent also goes through a route's calls (``check_agent_setup``)."""
+    return check_agent_setup(name, config, plan, timeout)[:2]
+
+
+def check_agent_setup(name: str, config: str | None, plan=None,
+                      timeout: float = 60.0) -> tuple[str, str | None, list[dict]]:
+    """(agent, config, sensor specs): the agent built once, ``check_config(config)``, and
+    with a route's ``plan`` (harness.sim.plan.GlobalPlan) ``set_global_plan``, ``setup``,
+    ``sensors()`` validated, ``destroy()``; each call within ``timeout`` [s]. Any failure
+    is BadInput naming the agent and the call (specs [] without a plan). The instance is
+    kept for routes driven in this process (``agent_for``)."""
     if name.endswith(".pt") and ":" not in name:
         if not Path(name).is_file():
             raise BadInput(f"--agent {name!r}: no such checkpoint file")
@@ -157,19 +293,56 @@ def check_agent(name: str, config: str | None) -> tuple[str, str | None]:
         name, config = "student", name
     if config and not Path(config).is_file():
         raise BadInput(f"--agent-config {config!r} does not exist")
+    stops, step = watch_stops(), "loading it"
     try:
-        load_agent(name).check_config(config)
-    except (AgentLoadError, ValueError, OSError) as exc:
-        raise BadInput(str(exc)) from None
-    return name, config
+        with _check_deadline(name, timeout):
+            agent = load_agent(name)
+            step = "check_config()"
+            agent.check_config(config)
+            specs: list[dict] = []
+            if plan is not None:
+                step = "setup()"
+                agent.set_global_plan(plan)
+                agent.setup(config)
+                step = "sensors()"
+                specs = agent.sensors()
+                validate_sensors(specs)
+                step = "destroy()"
+                agent.destroy()
+    except (AgentLoadError, SensorConfigurationInvalid) as exc:
+        raise BadInput(str(exc) if step == "loading it" else f"agent {name!r}: {step}: {exc}") from None
+    except CheckTimeout:
+        raise BadInput(f"agent {name!r}: {step} did not return within {timeout:g} s (--agent-timeout): "
+                       "fix the agent, or raise --agent-timeout") from None
+    except BadInput:
+        raise
+    except BaseException as exc:  # noqa: BLE001 - the agent's failure, one line naming it
+        if is_stop(exc, stops):
+            raise
+        if isinstance(exc, (ValueError, OSError)) and step == "check_config()":
+            raise BadInput(str(exc)) from None
+        raise BadInput(f"agent {name!r}: {step} failed ({_reason(exc)})") from None
+    _built[name] = agent
+    return name, config, [dict(s) for s in specs]
+
+
+_PRED_SHAPES = {"path": (20, 2), "speed_wps": (10, 2)}
 
 
 def split_output(out) -> tuple[Control, Prediction | None]:
-    """Normalise run_step's return value to (Control, Prediction or None); raises TypeError."""
+    """Normalise run_step's return value to (Control, Prediction or None); raises TypeError
+    (also for a Prediction whose arrays do not have the shapes it documents)."""
     if isinstance(out, Control):
         return out, None
     if isinstance(out, tuple) and len(out) == 2 and isinstance(out[0], Control):
-        if out[1] is not None and not isinstance(out[1], Prediction):
+        pred = out[1]
+        if pred is not None and not isinstance(pred, Prediction):
             raise TypeError("run_step's second value must be a harness.loop.agent.Prediction")
-        return out[0], out[1]
+        if pred is not None:
+            for field, shape in _PRED_SHAPES.items():
+                value = getattr(pred, field)
+                if value is not None and getattr(value, "shape", None) != shape and np.shape(value) != shape:
+                    raise TypeError(f"Prediction.{field} has shape {np.shape(value)}, expected {shape} "
+                                    "(ego frame, metres)")
+        return out[0], pred
     raise TypeError(f"run_step returned {type(out).__name__}, expected Control or (Control, Prediction)")

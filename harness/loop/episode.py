@@ -12,7 +12,10 @@ than the per-step deadline (``agent_timeout``, wall clock, default AGENT_TIMEOUT
 route as "Failed - Agent crashed", as the Leaderboard's agent watchdog does; the log up to
 that tick is kept. That includes what an agent raises that is not an Exception
 (SystemExit, KeyboardInterrupt, GeneratorExit); only the user's own Ctrl-C or SIGTERM
-(harness.common.stops) goes on to stop the run.
+(harness.common.stops) goes on to stop the run. An exception in ``destroy`` is kept at
+the end of the route's message. Every agent call runs under ``agent_call`` (its deadline
+published to a watching parent, harness.runs.runner, which kills a worker whose agent
+call does not return).
 """
 from __future__ import annotations
 
@@ -29,7 +32,7 @@ from controller.vehicle import DT, LENGTH, WIDTH, Control, EgoState
 from harness.common.stops import is_stop, watch_stops
 from harness.scoring import criteria
 from harness.scoring.statuses import FAILED_AGENT, FAILED_SETUP, FAILED_SIMULATION
-from harness.loop.agent import Prediction, load_agent, split_output, validate_sensors
+from harness.loop.agent import Prediction, agent_call, agent_for, forget_agent, split_output, validate_sensors
 from harness.loop.scene_log import SceneLog
 from harness.sim.contacts import overlaps
 from harness.sim.hazards import make_hazard
@@ -142,6 +145,7 @@ def run_episode(route: Route, agent_name: str, agent_config: str | None, seed: i
     run = _Run()
     ego = make_ego(vehicle, EgoState(*plan.path.pose(0.0), 0.0), rngs[2])
     world = World(route.town, int(ss.generate_state(1)[0] % (2**31 - 1)), background_roads(route, net))
+    status, message, rc = FAILED_SIMULATION, "", 0.0  # until the route ends
     try:
         status, message, rc = _drive(run, route, net, plan, world, (*rngs[:2], ego), agent_name, agent_config, on_frame,
                                      agent_timeout)
@@ -155,10 +159,16 @@ def run_episode(route: Route, agent_name: str, agent_config: str | None, seed: i
         if run.agent is not None:
             stops = watch_stops()
             try:
-                run.agent.destroy()
+                with agent_call(agent_timeout):
+                    run.agent.destroy()
             except BaseException as exc:  # noqa: BLE001 - destroy errors must not hide the route result
                 if is_stop(exc, stops):
                     raise
+                message = f"{message}; " if message else ""
+                message += f"destroy() raised {type(exc).__name__}: {exc}"
+                forget_agent(agent_name)
+            if status in (FAILED_AGENT, FAILED_SETUP):  # an instance that failed is not driven again
+                forget_agent(agent_name)
         world.close()
     return EpisodeResult(status, float(rc), round(run.tick * DT, 3), wallclock.perf_counter() - wall0,
                          run.tick, message, run.log, plan.length, plan, run.loop_time)
@@ -188,7 +198,7 @@ def _drive(run: _Run, route: Route, net, plan: GlobalPlan, world: World, rngs: t
     snap = world.snapshot()
     lights = [p for p in plan.passages if p.tls]
     bev = BevRenderer.for_town(route.town)
-    specs = _setup_agent(run, agent_name, agent_config, plan)
+    specs = _setup_agent(run, agent_name, agent_config, plan, agent_timeout)
     ends = _RouteEnd(plan)
     signs = StopTracker(plan)  # which stop signs the BEV still draws
     props = scene.props
@@ -227,15 +237,20 @@ def _drive(run: _Run, route: Route, net, plan: GlobalPlan, world: World, rngs: t
     return end, "", ends.done.rc
 
 
-def _setup_agent(run: _Run, agent_name: str, agent_config: str | None, plan: GlobalPlan) -> list[dict]:
-    """Load the agent into ``run``, give it the plan, set it up; returns its validated
-    sensor specs. Any failure raises _AgentSetupError."""
+def _setup_agent(run: _Run, agent_name: str, agent_config: str | None, plan: GlobalPlan,
+                 timeout: float) -> list[dict]:
+    """This process's agent (built on its first route) into ``run``, given the plan and set
+    up; returns its validated sensor specs. Each call runs under the deadline ``timeout``
+    [s] (harness.loop.agent.agent_call). Any failure raises _AgentSetupError."""
     stops = watch_stops()
     try:
-        run.agent = load_agent(agent_name)
-        run.agent.set_global_plan(plan)
-        run.agent.setup(agent_config)
-        specs = run.agent.sensors()
+        with agent_call(timeout):
+            run.agent = agent_for(agent_name)
+        with agent_call(timeout):
+            run.agent.set_global_plan(plan)
+            run.agent.setup(agent_config)
+        with agent_call(timeout):
+            specs = run.agent.sensors()
         validate_sensors(specs)
     except BaseException as exc:  # noqa: BLE001 - any agent failure is recorded, the run goes on
         if is_stop(exc, stops):
@@ -375,7 +390,8 @@ def _step_with_deadline(agent, inputs: dict, timestamp: float, timeout: float, a
         _armed_timeout = timeout
         signal.setitimer(signal.ITIMER_REAL, timeout)
     try:
-        out = agent.run_step(inputs, timestamp)
+        with agent_call(timeout):
+            out = agent.run_step(inputs, timestamp)
     finally:
         if alarm:
             _armed_timeout = None

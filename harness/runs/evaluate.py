@@ -5,7 +5,10 @@ raises ``BadInput`` with one line naming the problem and the fix.
 
 A run holds its folder for its whole length (harness.common.lock: a second ``eval``,
 ``collect`` or ``--resume`` on it is refused); before the first route the folder, its
-``logs`` (and ``episodes``) folder and the results file are checked writable. A file that
+``logs`` (and ``episodes``) folder and the results file are checked writable, and a
+results file of another run is never replaced (harness.runs.runner.check_results_file). The agent is
+built once for its checks (harness.loop.agent.check_agent_setup, on the first route's
+plan); ``--workers`` is bounded by the cores (``check_workers``). A file that
 cannot be written later (a full disk) stops the run with one line naming it
 (``BadInput``); the routes recorded so far are kept and ``--resume`` finishes the run.
 """
@@ -23,7 +26,7 @@ from pathlib import Path
 from controller.ego import DEFAULT_VEHICLE
 from harness.common.errors import BadInput
 from harness.common.lock import FolderLock
-from harness.loop.agent import check_agent, load_agent
+from harness.loop.agent import check_agent_setup
 from harness.loop.episode import AGENT_TIMEOUT
 from harness.runs.jobs import Job, route_seed
 
@@ -33,6 +36,22 @@ from harness.runs.jobs import Job, route_seed
 # driving on 2 cores (500 in 483 s, docs/reliability.md).
 MAX_ROUTE_RUNS = 100_000
 _MAX_ID_DIGITS = 9  # a --routes-subset bound with more digits names no route of a set
+
+
+WORKERS_PER_CORE = 2  # local worker processes per core, at most: each holds a libsumo (~400 MB)
+
+
+def check_workers(workers: int | None) -> None:
+    """BadInput unless ``workers`` (local processes; None: one per core) is between 1 and
+    WORKERS_PER_CORE per core of this computer."""
+    cores = os.cpu_count() or 1
+    if workers is None:
+        return
+    if workers < 1:
+        raise BadInput(f"--workers {_clip(str(workers))}: must be >= 1")
+    if workers > WORKERS_PER_CORE * cores:
+        raise BadInput(f"--workers {_clip(str(workers))}: at most {WORKERS_PER_CORE * cores} ({WORKERS_PER_CORE} per "
+                       f"core, {cores} cores; each worker holds a simulator of about 400 MB); give fewer")
 
 
 @dataclass(frozen=True)
@@ -46,7 +65,9 @@ class Backend:
 
     def check(self) -> None:
         """BadInput unless the numbers make sense and Ray is installed if asked for."""
-        if self.workers is not None and self.workers < 1:
+        if self.name == "local":
+            check_workers(self.workers)
+        elif self.workers is not None and self.workers < 1:
             raise BadInput(f"--workers {self.workers}: must be >= 1")
         if self.address and self.name != "ray":
             raise BadInput("--address needs --backend ray")
@@ -127,6 +148,14 @@ def _known_lengths(routes: list) -> list:
     from scenarios.check import check_route
     return [r if math.isfinite(r.length) else dataclasses.replace(r, length=round(check_route(r).length, 2))
             for r in routes]
+
+
+def first_plan(route):
+    """The plan of ``route`` (harness.sim.plan.GlobalPlan), on which the agent's checks
+    run a route's set-up calls."""
+    from harness.sim.plan import build_plan
+    from sumo_nets import load_net
+    return build_plan(route, load_net(route.town))
 
 
 def _route_set(name: str) -> Path:
@@ -222,12 +251,12 @@ def evaluate(routes: str, agent: str, agent_config: str | None = None, out: Path
     backend.check()
     from scenarios.routefile import read_routes
     path = _route_set(routes)
-    agent, agent_config = check_agent(agent, agent_config)
     _, all_routes = read_routes(path)
     keep = set(select_routes(subset, [r.id for r in all_routes]))
     chosen = _known_lengths([r for r in all_routes if r.id in keep])
     if not chosen:
         raise BadInput(f"--routes-subset {subset!r} selects no route of {path.name}")
+    agent, agent_config, specs = check_agent_setup(agent, agent_config, first_plan(chosen[0]), agent_timeout)
     _check_count(repetitions, len(chosen))
     out = out if out is not None else Path("runs") / f"{path.stem}_{agent.replace(':', '.')}"
     place = {r.id: i for i, r in enumerate(all_routes)}
@@ -236,7 +265,7 @@ def evaluate(routes: str, agent: str, agent_config: str | None = None, out: Path
                 str(out / "logs"), rules, agent_timeout=agent_timeout, vehicle=vehicle)
             for k, (rep, r) in enumerate(runs)]
     checkpoint = checkpoint if checkpoint is not None else out / "results.json"
-    sensors = [s["type"] for s in load_agent(agent).sensors()]
+    sensors = [s["type"] for s in specs]
     from harness.runs.runner import rss_summary
     with FolderLock(out):
         records = _run(jobs, out, resume, backend, "a run", checkpoint=checkpoint, sensors=sensors)

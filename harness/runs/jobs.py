@@ -20,12 +20,13 @@ import numpy as np
 
 from controller.ego import DEFAULT_VEHICLE
 from files.atomic import savez_atomic
+from harness.common.lock import check_folder
 from harness.loop.episode import AGENT_TIMEOUT
 from harness.scoring.bench2drive import record_keys
 from harness.scoring.infractions import KEYS
 from harness.scoring.records import COUNT_KEYS, STABILITY
 from harness.scoring.scores import outside_lanes, route_record
-from harness.scoring.statuses import COMPLETED, FAILED_SIMULATION, crash_message
+from harness.scoring.statuses import COMPLETED, FAILED_AGENT, FAILED_SIMULATION, crash_message
 from scenarios.routefile import Route
 
 @dataclass(frozen=True)
@@ -42,6 +43,7 @@ class Job:
     route_file: str = ""
     agent_timeout: float = AGENT_TIMEOUT  # per-step deadline of run_step [s of wall time]
     vehicle: str = DEFAULT_VEHICLE  # the ego model (controller.ego)
+    folder: tuple = ()  # (device, inode) of the run folder, checked before a file is written
 
     @property
     def key(self) -> str:
@@ -113,6 +115,8 @@ def run_job(job: Job) -> dict:
                       on_frame=recorder.on_frame if recorder else None, agent_timeout=job.agent_timeout,
                       vehicle=job.vehicle)
     arrays = res.log.arrays()
+    if job.folder:
+        check_folder(Path(job.log_dir).parent, job.folder)
     savez_atomic(Path(job.log_dir) / f"{job.key}.npz", **arrays)
     values: dict = {}
     infractions, speed = {k: [] for k in KEYS}, []
@@ -136,10 +140,26 @@ def run_job(job: Job) -> dict:
     return record
 
 
-def crash_record(job: Job, reason: str) -> dict:
-    """The record of a route whose simulation or worker failed: "Failed - Simulation crashed"."""
-    return make_record(job, FAILED_SIMULATION, 0.0, traced_length(job.route), 0.0, 0.0, 0, reason,
+def crash_record(job: Job, reason: str, status: str = FAILED_SIMULATION) -> dict:
+    """The record of a route whose simulation or worker failed: "Failed - Simulation crashed"
+    (or ``status``)."""
+    return make_record(job, status, 0.0, traced_length(job.route), 0.0, 0.0, 0, reason,
                        {k: [] for k in KEYS}, {}, job.rules)
+
+
+# A worker whose agent call runs this long past its deadline [s] is ended (by the parent,
+# harness.runs.runner; in a Ray task by its own watch thread, harness.runs.ray_backend):
+# the agent ignored, cancelled or swallowed the in-process alarm, or hangs outside
+# run_step. Checked every WATCH_EVERY s, so a hung route ends within its deadline + 4 s
+# and the time it takes to end the process.
+KILL_AFTER, WATCH_EVERY = 3.0, 1.0
+
+
+def hung_record(job: Job) -> dict:
+    """The record of a route whose agent hung in a call past its deadline, its worker
+    killed: "Failed - Agent crashed" with the Leaderboard's timeout words."""
+    return crash_record(job, f"Agent took longer than {job.agent_timeout:g}s to return from a call "
+                             "(its worker process was ended)", FAILED_AGENT)
 
 
 def traced_length(route: Route) -> float:

@@ -31,10 +31,15 @@ import logging
 import os
 import socket
 import tempfile
+import threading
+import time
+import types
 from pathlib import Path
 
 from files.atomic import write_atomic
-from harness.runs.jobs import Job, b2d_dir, crash_record, run_job_safely, worker_stats
+from harness.common.lock import check_folder
+from harness.loop.agent import watch_agent_calls
+from harness.runs.jobs import KILL_AFTER, WATCH_EVERY, Job, b2d_dir, crash_record, run_job_safely, worker_stats
 
 OUTPUT_KINDS = ("logs", "episodes", "b2d")  # folders of a task's files: Job.log_dir, Job.collect_dir, b2d_dir
 CONNECT_TIMEOUT = 10.0  # s to reach the head node's port before ray.init (which would hang)
@@ -108,16 +113,39 @@ def _check_token(address: str) -> None:
         os.close(devnull)
 
 
+def _watch_own_agent() -> threading.Event:
+    """In a Ray worker: a thread that ends this process when an agent call runs KILL_AFTER
+    s past its deadline (harness.loop.agent.agent_call), as the local backend's parent
+    does; the route is then recorded as its worker's death. Set the event to stop it."""
+    deadline = types.SimpleNamespace(value=0.0)
+    watch_agent_calls(deadline)
+    done = threading.Event()
+
+    def watch() -> None:
+        while not done.wait(WATCH_EVERY):
+            if deadline.value and time.monotonic() > deadline.value + KILL_AFTER:
+                os._exit(HUNG_EXIT)
+    threading.Thread(target=watch, daemon=True).start()
+    return done
+
+
+HUNG_EXIT = 124  # exit code of a Ray worker ended because its agent hung (as timeout(1)'s)
+
+
 def _run_task(job: Job) -> tuple[dict, dict, dict[str, bytes]]:
     """In a Ray worker: run the job with its files in a temporary folder; returns the
     record, the worker's stats and the files ({"logs/<name>": bytes, ...})."""
+    watching = _watch_own_agent()
     with tempfile.TemporaryDirectory(prefix="sumo-scimm-") as tmp:
         folders = {kind: Path(tmp) / kind for kind in OUTPUT_KINDS}
         for d in folders.values():
             d.mkdir()
-        here = dataclasses.replace(job, log_dir=str(folders["logs"]),
+        here = dataclasses.replace(job, log_dir=str(folders["logs"]), folder=(),  # the driver checks the run folder
                                    collect_dir=str(folders["episodes"]) if job.collect_dir else "")
-        rec = run_job_safely(here)
+        try:
+            rec = run_job_safely(here)
+        finally:
+            watching.set()
         files = {f"{kind}/{p.relative_to(d).as_posix()}": p.read_bytes() for kind, d in folders.items()
                  for p in sorted(d.rglob("*")) if p.is_file() and not p.name.endswith(".tmp.npz")}
     return rec, {**worker_stats(1), "node": _ray().get_runtime_context().get_node_id()}, files
@@ -126,6 +154,8 @@ def _run_task(job: Job) -> tuple[dict, dict, dict[str, bytes]]:
 def _write_files(job: Job, files: dict[str, bytes]) -> None:
     """Write a task's files under the job's folders (atomically, as the local backend does)."""
     folders = {"logs": job.log_dir, "episodes": job.collect_dir, "b2d": str(b2d_dir(job))}
+    if job.folder:
+        check_folder(Path(job.log_dir).parent, job.folder)
     for name, data in files.items():
         kind, base = name.split("/", 1)
         path = Path(folders[kind]) / base

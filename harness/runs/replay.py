@@ -12,8 +12,11 @@ controller's steer, throttle, brake; its predicted path and speed waypoints) giv
 stability metrics of harness.scoring.stability on the reference's moving ticks; arms are
 then compared route-paired with intervals (harness.scoring.report.compare).
 
-An agent is set up afresh for every route (``set_global_plan``, ``setup``, ``sensors``), as
-in ``eval``; agents that read the privileged ``world`` sensor are refused (the log keeps
+Each agent is built once for the checks (on the first route's plan, its ``sensors()``
+validated after ``setup()``) and once per worker process, and set up afresh for every
+route (``set_global_plan``, ``setup``, ``sensors``), as in ``eval``; the output folder is
+held (harness.common.lock) while the replay runs. Agents that read the privileged
+``world`` sensor are refused (the log keeps
 what the BEV draws, not the ids and speeds the expert reads). An agent that raises on a
 route gets a row with its message and no metrics there; the replay goes on.
 
@@ -33,6 +36,7 @@ import hashlib
 import json
 import multiprocessing as mp
 import os
+import re
 import zipfile
 from dataclasses import dataclass
 from pathlib import Path
@@ -42,7 +46,8 @@ from tqdm import tqdm
 
 from files.atomic import savez_atomic, write_atomic
 from harness.common.errors import BadInput
-from harness.loop.agent import check_agent, load_agent, split_output, validate_sensors
+from harness.common.lock import FolderLock
+from harness.loop.agent import agent_for, check_agent_setup, forget_agent, split_output, validate_sensors
 from harness.loop.episode import sensor_inputs
 from harness.loop.scene_log import has_scene, scene_at
 from harness.scoring.records import STABILITY
@@ -93,12 +98,13 @@ def replay_route(job: ReplayJob) -> list[dict]:
     agents, specs, messages = [], [], [""] * len(job.agents)
     for i, (name, config) in enumerate(zip(job.names, job.configs)):
         try:
-            agent = load_agent(name)
+            agent = agent_for(name)
             agent.set_global_plan(plan)
             agent.setup(config)
             spec = agent.sensors()
             validate_sensors(spec)
         except Exception as exc:  # noqa: BLE001 - an agent failure is its row's message
+            forget_agent(name)
             agent, spec, messages[i] = None, [], f"set-up failed: {type(exc).__name__}: {exc}"
         agents.append(agent)
         specs.append(spec)
@@ -113,6 +119,7 @@ def replay_route(job: ReplayJob) -> list[dict]:
                 control, pred = split_output(agent.run_step(inputs, sc.timestamp))
             except Exception as exc:  # noqa: BLE001
                 messages[i] = f"tick {t}: {type(exc).__name__}: {exc}"
+                forget_agent(job.names[i])
                 agents[i] = None
                 continue
             o = outs[i]
@@ -125,8 +132,10 @@ def replay_route(job: ReplayJob) -> list[dict]:
         try:
             if agent is not None:
                 agent.destroy()
-        except Exception:  # noqa: BLE001 - destroy errors must not hide the route's outputs
-            pass
+        except Exception as exc:  # noqa: BLE001 - destroy errors must not hide the route's outputs
+            i = agents.index(agent)
+            messages[i] = messages[i] or f"destroy() raised {type(exc).__name__}: {exc}"
+            forget_agent(job.names[i])
     savez_atomic(Path(job.out) / f"{job.key}.npz", **{f"a{i}_{k}": v for i, o in enumerate(outs) for k, v in o.items()})
     v = log["v"][:n]
     rows = []
@@ -155,6 +164,10 @@ def _routes_of_run(run: Path, routes: str | None) -> dict[str, object]:
         for r in read_routes(f)[1]:
             found.setdefault(route_digest(r), r)
     out = {key: found[d] for key, d in wanted.items() if d in found}
+    for key, route in out.items():  # a key names the route's files: <route id>_rep<k>
+        if not re.fullmatch(rf"{re.escape(route.id)}_rep[0-9]{{1,9}}", key):
+            raise BadInput(f"{run}: run.jsonc names route run {key[:40]!r}, not <route id>_rep<k>: the run folder "
+                           "is damaged; evaluate the reference again")
     missing = sorted(set(wanted) - set(out))
     if missing:
         where = f"route file {routes}" if routes else "any shipped route set"
@@ -162,17 +175,18 @@ def _routes_of_run(run: Path, routes: str | None) -> dict[str, object]:
     return out
 
 
-def check_agents(agents: list[str]) -> tuple[list[str], list[str | None]]:
+def check_agents(agents: list[str], plan=None) -> tuple[list[str], list[str | None]]:
     """The agents' names and configs (``--agent NAME``, ``module:Class`` or ``PATH.pt``),
-    checked: BadInput for an unknown or repeated one, or one that reads the ``world``."""
+    checked, each built once (harness.loop.agent.check_agent_setup, on a route's ``plan``):
+    BadInput for an unknown or repeated one, or one that reads the ``world``."""
     if not agents:
         raise BadInput("replay needs at least one --agent")
     if len(set(agents)) < len(agents):
         raise BadInput(f"--agent {next(a for a in agents if agents.count(a) > 1)!r} is given twice")
     names, configs = [], []
     for a in agents:
-        name, config = check_agent(a, None)
-        if any(s.get("type") == "world" for s in load_agent(name).sensors()):
+        name, config, specs = check_agent_setup(a, None, plan)
+        if any(s.get("type") == "world" for s in specs):
             raise BadInput(f"--agent {a!r} reads the privileged 'world' sensor, which a replay cannot give "
                            "(the log keeps what the BEV draws): replay agents that drive from the BEV")
         names.append(name)
@@ -189,8 +203,9 @@ def plan_replay(run: Path, agents: list[str], out: Path | None, routes: str | No
         raise BadInput(f"{run} is not a run folder of 'sumo-scimm eval' (no logs/)")
     if out is not None and (out / "replay.csv").exists():
         raise BadInput(f"{out} already holds a replay: choose another --out")
-    names, configs = check_agents(agents)
     by_key = _routes_of_run(run, routes)
+    from harness.runs.evaluate import first_plan
+    names, configs = check_agents(agents, first_plan(next(iter(by_key.values()))) if by_key else None)
     ids = sorted({r.id for r in by_key.values()}, key=lambda i: (len(i), i))
     keep = set(select_routes(subset, ids))
     jobs = []
@@ -244,10 +259,17 @@ def replay(run: Path, agents: list[str], out: Path, *, routes: str | None = None
     """Replay reference run ``run`` with ``agents`` into ``out`` (module docstring); returns
     the comparison table as Markdown. ``labels``: names for the agents in replay.csv and the
     table (e.g. arm names for checkpoint paths; default the ``agents`` strings)."""
-    from harness.runs.provenance import software
-    jobs = plan_replay(run, agents, out, routes, subset)
     if labels is not None and (len(labels) != len(agents) or len(set(labels)) < len(labels)):
         raise ValueError(f"labels {labels} must name each of the {len(agents)} agents once")
+    with FolderLock(out):
+        return _replay_held(run, agents, out, routes, subset, workers, n_boot, progress, labels)
+
+
+def _replay_held(run: Path, agents: list[str], out: Path, routes: str | None, subset: str | None,
+                 workers: int | None, n_boot: int, progress: bool, labels: list[str] | None) -> str:
+    """``replay`` in the output folder it holds."""
+    from harness.runs.provenance import software
+    jobs = plan_replay(run, agents, out, routes, subset)
     (out / "outputs").mkdir(parents=True, exist_ok=True)
     rows = run_replay(jobs, workers, progress)
     names = dict(zip(agents, labels or agents))

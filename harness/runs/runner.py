@@ -22,7 +22,10 @@ Outputs in the run folder:
 Every route run gets its own seed, derived from the run seed, the route's place in its set
 and the repetition (sumo_scimm.cli), so records do not depend on the number of workers or the
 backend. A worker that dies (kill -9, segfault) has its route recorded as "Failed -
-Simulation crashed" with the reason; a new worker takes over and the run goes on.
+Simulation crashed" with the reason; a new worker takes over and the run goes on. A worker
+whose agent call (construction, setup, sensors, run_step, destroy) runs KILL_AFTER s past
+its deadline (``--agent-timeout``) is killed by the parent and its route recorded as
+"Failed - Agent crashed" (the agent timed out), whatever the agent did with the alarm.
 ``resume`` keeps the complete records already in ``records.jsonl`` and runs only the rest
 (a torn last line is dropped and redone); it refuses (BadInput) a folder whose run.jsonc
 differs from the resumed run's (other options, another checkpoint; other software when
@@ -40,10 +43,12 @@ records into the same files in completion order.
 """
 from __future__ import annotations
 
+import dataclasses
 import json
 import multiprocessing as mp
 import os
 import signal
+import time
 from multiprocessing.connection import wait
 from pathlib import Path
 
@@ -51,13 +56,18 @@ import numpy as np
 from tqdm import tqdm
 
 from files.atomic import signals_held, write_atomic
-from harness.runs.jobs import Job, crash_record, release_freed_memory, run_job_safely, worker_stats
+from harness.common.errors import BadInput
+from harness.common.lock import check_folder, folder_identity, open_nofollow
+from harness.loop.agent import watch_agent_calls
+from harness.runs.jobs import (KILL_AFTER, WATCH_EVERY, Job, crash_record, hung_record, release_freed_memory,
+                               run_job_safely, worker_stats)
 from harness.scoring.records import parse_record, record_line
 from harness.runs.provenance import OLD_RUN_FILE, RUN_FILE, check_same_run, run_identity
 
 
-def _worker(conn) -> None:
+def _worker(conn, deadline) -> None:
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C reaches the parent, which ends its workers
+    watch_agent_calls(deadline)
     routes_run = 0
     while True:
         try:
@@ -111,24 +121,39 @@ def _append(f, line: str, path: Path, sync: bool = False) -> None:
         raise OSError(exc.errno, exc.strerror or os.strerror(exc.errno), str(path)) from exc
 
 
-def read_records(path: Path) -> list[dict]:
-    """Complete records of a records.jsonl (a torn last line is ignored)."""
+def read_records(path: Path, check: bool = False) -> list[dict]:
+    """Complete records of a records.jsonl (a torn last line, one without its newline, is
+    ignored). ``check``: every other line must be a route record as ``eval`` writes it
+    (harness.scoring.validate.record_line_problem: its fields, each of its type and in
+    its range, no key twice), else BadInput naming the line; without it such lines are
+    skipped."""
+    from harness.scoring.validate import DuplicateKey, no_duplicates, record_line_problem
     out = []
-    if path.exists():
-        for line in path.read_text().splitlines():
-            try:
-                rec = parse_record(line)
-            except json.JSONDecodeError:
+    if not path.exists():
+        return out
+    lines = path.read_text(errors="replace").split("\n")
+    for i, line in enumerate(lines):
+        if not line.strip():
+            continue
+        try:
+            rec = parse_record(line, no_duplicates)
+            bad = record_line_problem(rec) if check else None
+        except (json.JSONDecodeError, DuplicateKey, RecursionError) as exc:
+            if i == len(lines) - 1:  # torn: cut short while it was written
                 continue
-            if isinstance(rec, dict) and "key" in rec:
-                out.append(rec)
+            bad = f"is not a JSON record ({exc})"
+        if bad and check:
+            raise BadInput(f"{path} line {i + 1} {bad}: the file is damaged; delete that line (its route runs "
+                           "again on --resume), or start the run afresh in another --out")
+        if not bad and isinstance(rec, dict) and "key" in rec:
+            out.append(rec)
     return out
 
 
-def _keep_complete_lines(path: Path, resume: bool) -> list[dict]:
+def _keep_complete_lines(path: Path, resume: bool, check: bool = False) -> list[dict]:
     """Start a JSON-lines file afresh, or (resume) keep its complete lines; replaced
     atomically, so nothing is lost meanwhile, and appends start on a fresh line."""
-    kept = read_records(path) if resume else []
+    kept = read_records(path, check) if resume else []
     write_atomic(path, "".join(record_line(r) for r in kept))
     return kept
 
@@ -139,13 +164,32 @@ def _run_local(jobs: list[Job], workers: int, emit) -> None:
     ctx = mp.get_context("spawn")
     pending = list(reversed(jobs))
     slots: dict = {}  # connection -> (process, job or None)
+    deadlines: dict = {}  # connection -> the worker's agent-call deadline (harness.loop.agent.agent_call)
 
     def start_worker():
         parent, child = ctx.Pipe()
-        p = ctx.Process(target=_worker, args=(child,), daemon=True)
+        deadline = ctx.RawValue("d", 0.0)
+        p = ctx.Process(target=_worker, args=(child, deadline), daemon=True)
         p.start()
         child.close()
         slots[parent] = (p, None)
+        deadlines[parent] = deadline
+
+    def end_hung_workers():
+        """Kill every worker whose agent call ran KILL_AFTER s past its deadline; its route
+        is recorded ("Failed - Agent crashed", harness.runs.jobs.hung_record), a new
+        worker takes over."""
+        now = time.monotonic()
+        for conn, (p, job) in list(slots.items()):
+            due = deadlines[conn].value
+            if job is None or not due or now < due + KILL_AFTER:
+                continue
+            p.kill()
+            p.join()
+            del slots[conn], deadlines[conn]
+            emit(job, hung_record(job), None)
+            if pending:
+                start_worker()
 
     try:
         for _ in range(min(workers, len(jobs))):
@@ -160,10 +204,13 @@ def _run_local(jobs: list[Job], workers: int, emit) -> None:
                     else:
                         conn.send(None)
                         p.join()
-                        del slots[conn]
+                        del slots[conn], deadlines[conn]
             if not slots:
                 break
-            ready = wait(list(slots) + [p.sentinel for p, _ in slots.values()])
+            ready = wait(list(slots) + [p.sentinel for p, _ in slots.values()], timeout=WATCH_EVERY)
+            if not ready:
+                end_hung_workers()
+                continue
             for conn, (p, job) in list(slots.items()):
                 if conn in ready:
                     try:
@@ -178,15 +225,37 @@ def _run_local(jobs: list[Job], workers: int, emit) -> None:
                         continue
                 if p.sentinel in ready or not p.is_alive():
                     p.join()
-                    del slots[conn]
+                    del slots[conn], deadlines[conn]
                     if job is not None:
                         emit(job, crash_record(job, f"worker process died (exit code {p.exitcode})"), None)
                     if pending:
                         start_worker()
+            end_hung_workers()
     finally:
         for p, _ in slots.values():  # only after an interruption or an error
             p.terminate()
             p.join()
+
+
+def check_results_file(checkpoint: Path, jobs: list[Job], resume: bool) -> None:
+    """BadInput if the results file ``checkpoint`` exists and is not this run's to write:
+    a fresh run never replaces one; a resumed run only one whose records are all route
+    runs of it."""
+    if not checkpoint.is_file() or checkpoint.stat().st_size == 0:
+        return
+    fix = "give another --checkpoint (or --out), or remove the file"
+    if not resume:
+        raise BadInput(f"--checkpoint {checkpoint} already holds a results file of another run: {fix}")
+    try:
+        records = json.loads(checkpoint.read_text())["_checkpoint"]["records"]
+        ids = {r["route_id"] for r in records}
+    except (OSError, ValueError, KeyError, TypeError, UnicodeDecodeError) as exc:
+        raise BadInput(f"--checkpoint {checkpoint} is not a results file ({type(exc).__name__}): {fix}") from None
+    ours = {f"RouteScenario_{j.key}" for j in jobs}
+    other = sorted(str(i) for i in ids - ours)
+    if other:
+        raise BadInput(f"--checkpoint {checkpoint} holds route {other[0][:40]}, not a route run of this run: "
+                       f"{fix}")
 
 
 def run_eval(jobs: list[Job], out: Path, workers: int | None, resume: bool, show_progress: bool = True,
@@ -199,10 +268,11 @@ def run_eval(jobs: list[Job], out: Path, workers: int | None, resume: bool, show
     (local) or every CPU of the Ray cluster."""
     from harness.scoring.outputs import write_outputs
     identity = run_identity(jobs)
-    kept = read_records(out / "records.jsonl") if resume else []
+    kept = read_records(out / "records.jsonl", check=True) if resume else []
     adding = not resume or bool({j.key for j in jobs} - {r["key"] for r in kept})
     if resume:  # before Ray starts: a refused resume starts nothing
         check_same_run(out, identity, kept, adding)
+    check_results_file(checkpoint or out / "results.json", jobs, resume)
     pool = None
     if backend == "ray":  # connect first: a cluster that cannot be reached leaves no file behind
         from harness.runs.ray_backend import RayPool
@@ -222,15 +292,20 @@ def run_eval(jobs: list[Job], out: Path, workers: int | None, resume: bool, show
             write_atomic(out / RUN_FILE, json.dumps(identity, indent=1) + "\n")
         if old.is_file():
             old.unlink()
-        done = _keep_complete_lines(rec_path, resume)
+        done = _keep_complete_lines(rec_path, resume, check=True)
         _keep_complete_lines(workers_path, resume)
+        here = folder_identity(out)  # the run's folder, checked before each write
+        jobs = [dataclasses.replace(j, folder=here) for j in jobs]
         have = {r["key"] for r in done}
         todo = [j for j in jobs if j.key not in have]
         records = list(done)
         bar = tqdm(total=len(jobs), initial=len(jobs) - len(todo), desc="eval", unit="route",
                    disable=not show_progress or None)
-        with open(rec_path, "ab", buffering=0) as f, open(workers_path, "ab", buffering=0) as wf:
+        append = os.O_WRONLY | os.O_APPEND
+        with (open(open_nofollow(rec_path, append), "ab", buffering=0) as f,
+              open(open_nofollow(workers_path, append), "ab", buffering=0) as wf):
             def emit(job: Job, rec: dict, stats: dict | None) -> None:
+                check_folder(out, here)
                 with signals_held():  # the route's lines and the rewritten tables, all or none
                     _append(f, record_line(rec), rec_path, sync=True)
                     records.append(rec)
@@ -247,6 +322,7 @@ def run_eval(jobs: list[Job], out: Path, workers: int | None, resume: bool, show
     finally:
         if pool is not None:
             pool.close()
+    check_folder(out, here)
     with signals_held():
         write_outputs(records, len(jobs), out, checkpoint, sensors, finished=len(records) == len(jobs))
     return records

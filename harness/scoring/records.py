@@ -62,10 +62,11 @@ def record_line(record: dict) -> str:
     return json.dumps(_nulled(record), allow_nan=False) + "\n"
 
 
-def parse_record(line: str) -> dict:
+def parse_record(line: str, object_pairs_hook=None) -> dict:
     """A record from a line of records.jsonl (null back to NaN in UNDEFINED_OK's columns;
-    a line of older runs with bare NaN reads too); json.JSONDecodeError if it is not JSON."""
-    rec = json.loads(line)
+    a line of older runs with bare NaN reads too); json.JSONDecodeError if it is not JSON.
+    ``object_pairs_hook``: as json.loads's (e.g. one refusing a key given twice)."""
+    rec = json.loads(line, object_pairs_hook=object_pairs_hook)
     if isinstance(rec, dict):
         for k in UNDEFINED_OK:
             if k in rec and rec[k] is None:

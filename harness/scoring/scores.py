@@ -152,6 +152,10 @@ def rescore(record: dict, rules: str = "lb2.0") -> tuple[dict, int]:
         raise ScoreError(f"record {rid} has no {exc}: {NOT_RESULTS}") from None
     if not isinstance(inf, dict) or not all(isinstance(v, list) for v in inf.values()):
         raise ScoreError(f"record {rid}: 'infractions' must map each key to a list of messages")
+    missing = [k for k in KEYS if k not in inf]
+    if missing:  # the leaderboard's merge_statistics.py and StatisticsManager read every key
+        raise ScoreError(f"record {rid}: 'infractions' has no {missing[0]!r} list (the leaderboard writes every "
+                         f"infraction key, an empty list when none): {NOT_RESULTS}")
     if isinstance(rc, bool) or not isinstance(rc, (int, float)):
         rc = float(rc)  # a number written as text
     dropped = 0

@@ -18,8 +18,15 @@ harness.scoring.scores, which asks ``results_problem`` once it has found records
 module reads the messages itself, so that it does not import the scorer it guards).
 
 ``run_folder_problem`` does the same for what ``report`` reads from an eval run folder:
-records.csv with at least one row, finite figures in range, as many rows as results.json
-has records.
+records.csv with at least one row, finite figures in range (the infraction counts and the
+stability metrics >= 0, the latter NaN where undefined), a list of records in results.json
+and as many rows as it has records.
+
+``record_line_problem`` checks one line of records.jsonl before ``--resume`` keeps it: a
+JSON object (``no_duplicates``: no key twice) with only the fields ``eval`` writes
+(harness.scoring.records' RECORD_FIELDS and ``JSONL_FIELDS``), the ones every record has
+present, each of its type and in its range, and a Leaderboard record (``lb``) that passes
+``record_problem``.
 """
 from __future__ import annotations
 
@@ -27,6 +34,8 @@ import csv
 import json
 import math
 from pathlib import Path
+
+from harness.scoring.records import COUNT_KEYS, RECORD_FIELDS, STABILITY
 
 # field -> (low, high, low is open)
 SCORE_RANGES = {"score_route": (0.0, 100.0, False), "score_penalty": (0.0, 1.0, False),
@@ -38,6 +47,21 @@ META_RANGES = {"route_length": (0.0, 1e7, True), "duration_game": (0.0, 1e9, Fal
 CSV_RANGES = {"ds": (0.0, 100.0, False), "rc": (0.0, 100.0, False), "is": (0.0, 1.0, False),
               "km_driven": (0.0, math.inf, False)}
 _SHOWN = 16  # characters of a bad value quoted in a message
+_COUNT = (0.0, math.inf, False)  # an infraction count, a stability metric: >= 0
+
+
+class DuplicateKey(ValueError):
+    """A JSON object that names a key twice."""
+
+
+def no_duplicates(pairs: list[tuple[str, object]]) -> dict:
+    """``json.loads``'s object_pairs_hook: the object as a dict; DuplicateKey if a key repeats."""
+    out: dict = {}
+    for k, v in pairs:
+        if k in out:
+            raise DuplicateKey(f"key {_shown(k, 40)} appears twice")
+        out[k] = v
+    return out
 
 
 def _shown(value, width: int = _SHOWN) -> str:
@@ -158,7 +182,7 @@ def run_folder_problem(folder: Path) -> str | None:
     except (OSError, ValueError, KeyError, TypeError, UnicodeDecodeError, csv.Error):
         return None
     if not isinstance(records, list):
-        return None
+        return f"{res}: _checkpoint.records is {_shown(records)}, not a list of route records: the file is damaged"
     if not rows:
         return (f"{rec} has no route row: the run folder is damaged (run 'sumo-scimm eval ... --resume' to "
                 "write it again)")
@@ -166,8 +190,8 @@ def run_folder_problem(folder: Path) -> str | None:
     if bad:
         return f"{res}: {bad}"
     for i, row in enumerate(rows):
-        for key, bounds in CSV_RANGES.items():
-            if key in row:
+        for key, bounds in _csv_ranges().items():
+            if key in row and not (key in STABILITY and row[key].strip().lower() in ("nan", "")):
                 bad = number_problem(row[key], bounds, text_ok=True)
                 if bad:
                     return f"{rec}: row {i + 1} {key} {bad}: the run folder is damaged"
@@ -175,3 +199,57 @@ def run_folder_problem(folder: Path) -> str | None:
         return (f"{rec} has {len(rows)} rows but {res.name} {len(records)} records: the run folder is damaged "
                 "(run 'sumo-scimm eval ... --resume' to write both again)")
     return None
+
+
+def _csv_ranges() -> dict[str, tuple[float, float, bool]]:
+    """Every records.csv column report reads, with its range."""
+    return {**CSV_RANGES, **dict.fromkeys((*COUNT_KEYS, *STABILITY), _COUNT)}
+
+
+# records.jsonl: its fields beyond records.csv's (harness.scoring.records), the fields every
+# record has, and the checks of the ones a record may have besides
+JSONL_FIELDS = ("episode_status", "hazard", "efficiency", "smoothness", "lb")
+_REQUIRED = ("key", "route_id", "repetition", "status", "ds", "rc", "is", "seed", "lb")
+_OPTIONAL_TEXT = ("town", "message", "episode_status", "hazard")
+_OPTIONAL_NUMBERS = {"outside_lanes_pct": (0.0, 100.0, False), "collisions_per_km": _COUNT,
+                     "km_driven": _COUNT, "length": (0.0, 1e7, False), "game_time": (0.0, 1e9, False),
+                     "wall_time": (0.0, 1e9, False), "steps": _COUNT, "efficiency": _COUNT,
+                     "smoothness": (0.0, 1.0, False)}
+
+
+def _undefined(value) -> bool:
+    """A number recorded as undefined: null, or NaN."""
+    return value is None or (isinstance(value, float) and math.isnan(value))
+
+
+def record_line_problem(rec) -> str | None:
+    """What is wrong with one parsed line of records.jsonl (None if nothing)."""
+    if not isinstance(rec, dict):
+        return f"is {_shown(rec)}, not a record"
+    known = set(RECORD_FIELDS) | set(JSONL_FIELDS)
+    unknown = sorted(set(rec) - known)
+    if unknown:
+        return f"has an unknown field {_shown(unknown[0], 40)}"
+    missing = [k for k in _REQUIRED if k not in rec]
+    if missing:
+        return f"has no {missing[0]!r}"
+    for k in ("key", "route_id", "status", *(t for t in _OPTIONAL_TEXT if t in rec)):
+        if not isinstance(rec[k], str):
+            return f"{k} is {_shown(rec[k])}, not text"
+    for k in ("repetition", "seed", *(c for c in COUNT_KEYS if c in rec)):
+        if isinstance(rec[k], bool) or not isinstance(rec[k], int) or rec[k] < 0:
+            return f"{k} is {_shown(rec[k])}, not a whole number >= 0"
+    if rec["key"] != f"{rec['route_id']}_rep{rec['repetition']}":
+        return f"key {_shown(rec['key'], 40)} is not <route_id>_rep<repetition>"
+    ranges = {"ds": SCORE_RANGES["score_composed"], "rc": SCORE_RANGES["score_route"],
+              "is": SCORE_RANGES["score_penalty"], **_OPTIONAL_NUMBERS, **dict.fromkeys(STABILITY, _COUNT)}
+    for k, bounds in ranges.items():
+        if k not in rec or (k not in ("ds", "rc", "is") and _undefined(rec[k])):
+            continue
+        bad = number_problem(rec[k], bounds)
+        if bad:
+            return f"{k} {bad}"
+    bad = record_problem(rec["lb"])
+    if bad is None and not isinstance(rec["lb"].get("infractions"), dict):
+        bad = "has no infraction lists"
+    return f"lb (its Leaderboard record) {bad}" if bad else None

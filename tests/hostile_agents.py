@@ -1,0 +1,153 @@
+"""Agents that misbehave as an attacker's would, loaded as ``tests.hostile_agents:<Class>``.
+
+The ones that hang do so only in a worker process (``os.getpid()`` differs from
+``CHECK_PID``, the test process's pid, where the agent's checks run), so that the checks
+pass and the hang meets the parent's watchdog."""
+from __future__ import annotations
+
+import os
+import shutil
+import signal
+import sys
+import time
+
+import numpy as np
+
+from harness.loop.agent import AutonomousAgent, Control, Prediction
+from harness.loop.route_follower import RouteFollower
+
+
+def in_worker() -> bool:
+    return str(os.getpid()) != os.environ.get("CHECK_PID")
+
+
+def _hang() -> None:
+    """Sleep, swallowing every interruption, for far longer than any deadline of a test."""
+    end = time.monotonic() + 120
+    while time.monotonic() < end:
+        try:
+            time.sleep(end - time.monotonic())
+        except BaseException:  # noqa: BLE001 - on purpose
+            pass
+
+
+class ExitInInit(AutonomousAgent):
+    def __init__(self):
+        sys.exit(int(os.environ.get("EXIT_CODE", "0")))
+
+
+class InterruptInInit(AutonomousAgent):
+    def __init__(self):
+        raise KeyboardInterrupt
+
+
+class SensorsRaise(RouteFollower):
+    def sensors(self):
+        raise RuntimeError("no sensors today")
+
+
+class Sensors42(RouteFollower):
+    def sensors(self):
+        return 42
+
+
+class SensorWithoutType(RouteFollower):
+    def sensors(self):
+        return [{"id": "speed"}]
+
+
+class SensorsFailInWorker(RouteFollower):
+    """Passes the checks; its sensors() raise on every route in a worker."""
+
+    def sensors(self):
+        if in_worker():
+            raise RuntimeError("sensors broke in the worker")
+        return super().sensors()
+
+
+class SensorsAfterSetup(RouteFollower):
+    """Its sensors depend on what setup() did (valid only after it, the documented order)."""
+
+    def setup(self, config):
+        super().setup(config)
+        self.ready = True
+
+    def sensors(self):
+        return super().sensors() if getattr(self, "ready", False) else "setup() first"
+
+
+class Counted(RouteFollower):
+    """Appends a line to the file named by AGENT_COUNT at every construction."""
+
+    def __init__(self):
+        super().__init__()
+        with open(os.environ["AGENT_COUNT"], "a") as f:
+            f.write(f"{os.getpid()}\n")
+
+
+class BadPrediction(RouteFollower):
+    def run_step(self, input_data, timestamp):
+        return super().run_step(input_data, timestamp), Prediction(path=np.zeros((3, 3)))
+
+
+class DestroyRaises(RouteFollower):
+    """Passes the checks; its destroy() raises in a worker."""
+
+    def destroy(self):
+        if in_worker():
+            raise RuntimeError("destroy failed on purpose")
+
+
+class Hang(RouteFollower):
+    """In a worker, hangs on route ``HANG_<route id>``'s call: ``ignore`` (SIGALRM ignored,
+    then sleeps in run_step), ``cancel`` (the alarm cancelled), ``swallow`` (every
+    interruption swallowed), ``setup``, ``sensors``, ``destroy``."""
+
+    def _how(self) -> str:
+        return os.environ.get(f"HANG_{self.plan.route_id}", "") if in_worker() else ""
+
+    def setup(self, config):
+        super().setup(config)
+        if self._how() == "setup":
+            _hang()
+
+    def sensors(self):
+        if self._how() == "sensors":
+            _hang()
+        return super().sensors()
+
+    def run_step(self, input_data, timestamp):
+        how = self._how()
+        if how == "ignore":
+            signal.signal(signal.SIGALRM, signal.SIG_IGN)
+            time.sleep(120)
+        elif how == "cancel":
+            signal.setitimer(signal.ITIMER_REAL, 0)
+            time.sleep(120)
+        elif how == "swallow":
+            _hang()
+        return super().run_step(input_data, timestamp)
+
+    def destroy(self):
+        if self._how() == "destroy":
+            _hang()
+
+
+class HangInInit(RouteFollower):
+    def __init__(self):
+        super().__init__()
+        if in_worker():
+            _hang()
+
+
+class ReplacesRunFolder(RouteFollower):
+    """On route 1, in a worker, removes the run folder RUN_DIR and makes a new one there."""
+
+    def setup(self, config):
+        super().setup(config)
+        if self.plan.route_id == "1" and in_worker():
+            folder = os.environ["RUN_DIR"]
+            shutil.rmtree(folder)
+            os.makedirs(folder)
+            with open(os.path.join(folder, "other_run.txt"), "w") as f:
+                f.write("another run's folder\n")

@@ -23,7 +23,10 @@ COLLIDES_WITH_CARLA_CAR = {"68"}
 
 
 @pytest.mark.slow
-def test_the_expert_drives_its_hard_routes_without_collision_or_red_light(tmp_path, capsys):
+def test_the_expert_drives_its_hard_routes_without_red_light_and_collides_only_on_the_known_cut_in(tmp_path, capsys):
+    """Every hard route completed, no red light run, no collision but the one known cut-in
+    (COLLIDES_WITH_CARLA_CAR), where exactly one vehicle collision is expected: a second one,
+    or one on any other route, fails."""
     out = tmp_path / "run"
     subset = ",".join(HARD_ROUTES)
     assert main(["eval", "--routes", "town12_short", "--routes-subset", subset, "--agent", "expert",

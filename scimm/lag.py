@@ -33,11 +33,10 @@ import numpy as np
 import pandas as pd
 
 from scimm import pathspeed
-from scimm.table2 import GROUPS, ROW_NAMES, group_of
+from scimm.table2 import GROUPS, ROW_NAMES, STOOD_SPEED, group_of  # STOOD_SPEED: "standing" [m/s]
 
 DT = 0.25  # frame period [s]
 OFFSETS = tuple(range(-4, 5))  # frames tried for the alignment
-STOOD_SPEED = 0.1  # [m/s]: "standing" for the standstill check
 STOOD_FRAMES = 3  # this frame and the 2 before: 0.5 s at 4 Hz
 STANDSTILL_OK = 0.3  # [m/s]: a teacher v(0) at most this counts as standing
 MOVING_SPEED = 0.5  # [m/s]: "moving" for the red-light frames

@@ -3,6 +3,7 @@ Table 2 files out (docs/design.md §6). ``sumo-scimm teacher`` and ``sumo-scimm 
 
     DIR/teacher/<method>/          labels of each method (scimm.teacher's file contract)
     DIR/teacher/table2.csv         paper Table 2, groups = dominant SC-IMM mode
+    DIR/teacher/table2_moving.csv  the same over the frames where the expert moved
     DIR/teacher/mode_meaning.csv   frames of each labelled situation whose dominant mode means it
     DIR/teacher/fit_residuals.csv  fit residual of the observation per dominant mode (docs/design.md §6.1)
     DIR/teacher/lag.csv            alignment offset of v(0) and c0 per mode and teacher (scimm.lag)
@@ -66,7 +67,7 @@ def write_tables(folder: Path, files: list[Path]) -> dict[str, pd.DataFrame]:
 
 
 def evaluate(data: Path, files: list[Path], methods: tuple[str, ...] = tch.METHODS) -> dict[str, pd.DataFrame]:
-    """{"table2", "mode_meaning", "fit_residuals", "lag", "standstill", "stops_starts"}: Table 2, the
+    """{"table2", "table2_moving", "mode_meaning", "fit_residuals", "lag", "standstill", "stops_starts"}: Table 2, the
     mode-meaning table, the fit residuals per mode (scimm.table2) and the lag figures
     (scimm.lag) of the episode files against their written teachers
     ``data/teacher/<method>/`` (scimm.teacher file contract; ``methods`` must include scimm,
@@ -83,6 +84,7 @@ def evaluate(data: Path, files: list[Path], methods: tuple[str, ...] = tch.METHO
         episodes.append(ep)
     mus = {m: [ep[m]["mu"] for ep in episodes] for m in methods}
     align, still = lag_tables(episodes, methods)
-    return {"table2": table2(episodes, ("raw", *methods)), "mode_meaning": mode_meaning(sits, mus),
+    return {"table2": table2(episodes, ("raw", *methods)),
+            "table2_moving": table2(episodes, ("raw", *methods), moving_only=True), "mode_meaning": mode_meaning(sits, mus),
             "fit_residuals": fit_residuals(fits), "lag": align, "standstill": still,
             "stops_starts": stops_starts(episodes, methods)}

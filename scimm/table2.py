@@ -37,6 +37,7 @@ from scimm.ego import interp_rows, previous_in_current
 from scimm.modes import AVOID, DECEL, MODES, RECOVER, TURN
 
 DT = 0.25  # frame period [s]
+STOOD_SPEED = 0.1  # [m/s]: at or below, the expert stands (as scimm.lag)
 METRICS = ("speed_delta", "speed_jerk", "lat_delta", "heading_delta", "lat_jerk")
 DISPLAY = {"speed_delta": "Speed delta [m/s]", "speed_jerk": "Speed jerk [m/s^3]", "lat_delta": "Lat delta [m]",
            "heading_delta": "Heading delta [rad]", "lat_jerk": "Lat jerk [m/s^3]"}
@@ -140,14 +141,26 @@ def group_of(mu: np.ndarray) -> np.ndarray:
     return np.minimum(np.argmax(mu, axis=-1), len(GROUPS) - 1)
 
 
-def table2(episodes: Sequence[dict[str, dict[str, np.ndarray]]], rows: Sequence[str] = ROWS) -> pd.DataFrame:
+def table2(episodes: Sequence[dict[str, dict[str, np.ndarray]]], rows: Sequence[str] = ROWS,
+           moving_only: bool = False) -> pd.DataFrame:
     """Table 2 from episodes, each {row name: {"path", "speed"}} plus "scimm" holding "mu",
     and optionally "pose" (T, 3) world x, y [m], yaw [rad] for the ``MOVED`` columns (NaN
     without it); the ``FROM_RAW`` columns compare each row with the "raw" one (NaN without
-    it). Returns one line per (group, row): group, method, frames, the metric means."""
+    it). Returns one line per (group, row): group, method, frames, the metric means.
+
+    ``moving_only``: only the frames where the expert moved (the episode's "v" [m/s] above
+    STOOD_SPEED at the frame or at one of the two before it, the frames its metrics read).
+    A standing frame has every delta 0; the paper does not say whether its groups hold
+    them, so the table is given both ways (docs/teacher.md)."""
     per_row: dict[str, list[pd.DataFrame]] = {r: [] for r in rows}
     for ep in episodes:
         g = group_of(ep["scimm"]["mu"])
+        if moving_only:
+            v = ep["v"] > STOOD_SPEED
+            moved = v.copy()
+            moved[1:] |= v[:-1]  # t-1
+            moved[2:] |= v[:-2]  # t-2
+            g = np.where(moved, g, -1)
         for r in rows:
             df = pd.DataFrame(frame_metrics(ep[r]["path"], ep[r]["speed"]))
             if "pose" in ep:

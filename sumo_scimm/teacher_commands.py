@@ -36,6 +36,9 @@ def _teacher(args: argparse.Namespace) -> int:
     table, meaning, residuals = tables["table2"], tables["mode_meaning"], tables["fit_residuals"]
     print(f"Table 2 ({len(files)} episodes; groups = dominant SC-IMM mode) -> {folder / 'teacher' / 'table2.csv'}")
     print(format_table2(table))
+    print(f"\nTable 2 over the frames where the expert moved (a standing frame has every delta 0) -> "
+          f"{folder / 'teacher' / 'table2_moving.csv'}")
+    print(format_table2(tables["table2_moving"]))
     print("\nMode meaning: frames of each situation whose dominant mode means it")
     print(format_meaning(meaning))
     print("\nFit residual of the observation z (paper eq. 2-3) against the expert's labels, per dominant "

@@ -188,6 +188,24 @@ def test_table2_groups_by_the_scimm_mode_with_avoidance_and_recovery_merged():
     assert math.isnan(t.loc[("Cruise", "SC-IMM"), "speed_delta"])
 
 
+def test_table2_moving_only_leaves_out_frames_whose_three_frames_all_stood():
+    """Deceleration frames 0-5 with the expert's speed v = 0, 0, 0, 0, 2, 2 [m/s] and label
+    speeds equal to v. Moving frames (v > 0.1 at t, t-1 or t-2): 4 and 5. All frames: speed
+    deltas (frame 1 on) 0, 0, 0, 2, 0 -> mean 0.4; moving only: frames 4, 5 -> (2 + 0) / 2 = 1.
+    Speed jerk, moving only: frame 4 |2 - 0 + 0| / dt^2 = 32, frame 5 |2 - 4 + 0| / dt^2 = 32."""
+    v = np.array([0.0, 0.0, 0.0, 0.0, 2.0, 2.0])
+    path = np.zeros((6, 20, 2))
+    speed = v[:, None] * np.ones((6, 10))
+    ep = {"raw": {"path": path, "speed": speed}, "scimm": {"path": path, "speed": speed, "mu": np.eye(5)[[DECEL] * 6]},
+          "v": v}
+    every = table2([ep], rows=("raw",)).set_index(["mode", "method"]).loc[("Deceleration", "Original Raw Expert")]
+    moving = table2([ep], rows=("raw",), moving_only=True).set_index(["mode", "method"]).loc[
+        ("Deceleration", "Original Raw Expert")]
+    assert (every["frames"], moving["frames"]) == (6, 2)
+    assert every["speed_delta"] == 0.4 and moving["speed_delta"] == 1.0
+    assert moving["speed_jerk"] == 32.0
+
+
 def test_mode_meaning_counts_the_matching_dominant_modes():
     sit = np.array(["junction_turn", "junction_turn", "stopping", "bypass", "bypass", "cruise"])
     mu = np.eye(5)[[TURN, 0, DECEL, RECOVER, TURN, 0]]

@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from harness.loop.episode import AGENT_TIMEOUT
 from sumo_scimm.options import out_arg
 
 
@@ -13,7 +14,7 @@ def _replay(args: argparse.Namespace) -> int:
     from harness.runs.evaluate import check_workers
     check_workers(args.workers)
     md = replay(Path(args.run), args.agent, Path(args.out), routes=args.routes, subset=args.routes_subset,
-                workers=args.workers)
+                workers=args.workers, agent_timeout=args.agent_timeout)
     print(md)
     print(f"-> {args.out}/replay.csv, table.csv, table.md, outputs/")
     return 0
@@ -32,4 +33,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                     "sets by the routes' hashes in its run.jsonc)")
     rp.add_argument("--routes-subset", help="route ids to replay: '3', '0-9', '1,4,7' (default all)")
     rp.add_argument("--workers", type=int, default=None, help="worker processes (default: number of cores)")
+    rp.add_argument("--agent-timeout", type=float, default=AGENT_TIMEOUT,
+                    help=f"seconds one agent call (run_step, setup, ...) may take before the agent's row of the "
+                         f"route is a failure (default {AGENT_TIMEOUT:g})")
     rp.set_defaults(func=_replay)

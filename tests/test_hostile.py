@@ -3,9 +3,12 @@ folder held, agents that cannot hang or end a run, damaged files refused with on
 (exit code 2), and one agent instance per worker plus one for the checks."""
 from __future__ import annotations
 
+import csv
 import json
 import os
 import shutil
+import subprocess
+import sys
 import time
 import zipfile
 from pathlib import Path
@@ -188,13 +191,14 @@ def test_the_agent_is_built_once_per_worker_and_once_for_the_checks(tmp_path, mo
     assert len(pids) == 2 + 1 and pids[0] == str(os.getpid())  # the checks, then one per worker
 
 
-def test_replay_builds_the_agent_once_for_its_checks_and_drives_with_it(tmp_path, monkeypatch, follower_run):
-    """--workers 1 replays in this process: the instance built for the checks drives."""
+def test_replay_builds_the_agent_once_for_its_checks_and_once_in_its_worker(tmp_path, monkeypatch, follower_run):
+    """--workers 1 replays in one worker process (watched by this one, as eval's)."""
     count = tmp_path / "built.txt"
     monkeypatch.setenv("AGENT_COUNT", str(count))
     assert main(["replay", "--run", str(follower_run), "--agent", "tests.hostile_agents:Counted", "--workers", "1",
                  "--out", str(tmp_path / "rep")]) == 0
-    assert count.read_text().split() == [str(os.getpid())]
+    pids = count.read_text().split()
+    assert len(pids) == 2 and pids[0] == str(os.getpid()) != pids[1]
 
 
 # 9: hanging agents -------------------------------------------------------------------------
@@ -247,6 +251,36 @@ def test_a_ray_task_whose_agent_hangs_ends_and_the_run_goes_on(tmp_path, monkeyp
     assert recs["0_rep0"]["status"] == "Failed - Simulation crashed"
     assert "worker process died" in recs["0_rep0"]["message"]
     assert recs["1_rep0"]["status"] != "Failed - Simulation crashed"
+
+
+def test_replay_ends_an_agent_hanging_in_run_step_and_keeps_the_other_agents_rows(tmp_path):
+    """Route 0 of a two-route reference: the hanging agent ignores SIGALRM and sleeps in
+    run_step. The replay, run as its own process (a hang fails the test by the subprocess
+    timeout instead of hanging it), ends within --agent-timeout + 10 s for the hung route
+    plus 30 s for the rest (start-up, checks, replaying the two routes: about 15 s on 2
+    cores); the hung agent's row of route 0 says so, every other row has metrics."""
+    ref, rep = tmp_path / "ref", tmp_path / "rep"
+    assert main(eval_argv(ref, *FOLLOW, subset="0,1")) == 0
+    script = ("import os, sys; os.environ['CHECK_PID'] = str(os.getpid()); from sumo_scimm.cli import main; "
+              "sys.exit(main(sys.argv[1:]))")
+    argv = ["replay", "--run", str(ref), "--agent", "tests.hostile_agents:Hang", "--agent", "route_follower",
+            "--workers", "2", "--agent-timeout", str(TIMEOUT), "--out", str(rep)]
+    env = {**os.environ, "HANG_0": "ignore", "PYTHONPATH": str(Path(__file__).resolve().parent.parent)}
+    t0 = time.monotonic()
+    done = subprocess.run([sys.executable, "-c", script, *argv], env=env, capture_output=True, text=True,
+                          timeout=TIMEOUT + 10 + 30)
+    wall = time.monotonic() - t0
+    assert done.returncode == 0, done.stderr[-2000:]
+    rows = {(r["key"], r["agent"]): r for r in csv.DictReader(open(rep / "replay.csv"))}
+    assert sorted(rows) == [(k, a) for k in ("0_rep0", "1_rep0")
+                            for a in ("route_follower", "tests.hostile_agents:Hang")]
+    hung = rows["0_rep0", "tests.hostile_agents:Hang"]
+    assert "took longer than 2s" in hung["message"] and hung["steering_jerk_moving"] == "nan"
+    for key, agent in rows:
+        if (key, agent) != ("0_rep0", "tests.hostile_agents:Hang"):
+            assert rows[key, agent]["message"] == "" and float(rows[key, agent]["steering_jerk_moving"]) >= 0
+    assert int(hung["ticks"]) == int(rows["0_rep0", "route_follower"]["ticks"]) > 0
+    assert wall < TIMEOUT + 10 + 30, wall
 
 
 # 10: --resume on a damaged records.jsonl -------------------------------------------------

@@ -14,7 +14,7 @@ end (also after a crash). The agent never gets a simulator handle: everything it
 comes through ``input_data`` keyed by its sensors' ids.
 
 Every agent call runs under a deadline (``agent_call``): in a worker the parent process
-reads it and kills a worker whose agent call runs past it (harness.runs.runner), so an
+reads it and kills a worker whose agent call runs past it (harness.runs.workers), so an
 agent that hangs in any call, ignores or cancels the alarm, or swallows the interruption
 cannot hang a run.
 
@@ -208,24 +208,30 @@ def forget_agent(name: str) -> None:
 
 
 # The deadline of the agent call running in this process, shared with the parent that
-# watches it (harness.runs.runner): a monotonic time [s], 0.0 while no agent call runs.
+# watches it (harness.runs.workers): a monotonic time [s], 0.0 while no agent call runs;
+# and the number of its caller (``agent_call``'s ``caller``: which of several agents).
 _deadline = None
+_caller = None
 
 
-def watch_agent_calls(shared) -> None:
-    """Publish every agent call's deadline in ``shared`` (a multiprocessing double)."""
-    global _deadline
-    _deadline = shared
+def watch_agent_calls(shared, caller=None) -> None:
+    """Publish every agent call's deadline in ``shared`` (a multiprocessing double) and,
+    given ``caller`` (a multiprocessing int), the number of its caller."""
+    global _deadline, _caller
+    _deadline, _caller = shared, caller
 
 
 @contextlib.contextmanager
-def agent_call(timeout: float):
+def agent_call(timeout: float, caller: int = 0):
     """Run the block (one call into the agent) under a deadline ``timeout`` [s of wall
-    time] that the watching parent enforces; without a watcher the block runs as is."""
+    time] that the watching parent enforces; without a watcher the block runs as is.
+    ``caller``: which agent calls (replay's agents by their place), for the parent."""
     shared = _deadline
     if shared is None:
         yield
         return
+    if _caller is not None:
+        _caller.value = caller
     shared.value = time.monotonic() + timeout
     try:
         yield

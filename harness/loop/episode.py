@@ -14,7 +14,7 @@ that tick is kept. That includes what an agent raises that is not an Exception
 (SystemExit, KeyboardInterrupt, GeneratorExit); only the user's own Ctrl-C or SIGTERM
 (harness.common.stops) goes on to stop the run. An exception in ``destroy`` is kept at
 the end of the route's message. Every agent call runs under ``agent_call`` (its deadline
-published to a watching parent, harness.runs.runner, which kills a worker whose agent
+published to a watching parent, harness.runs.workers, which kills a worker whose agent
 call does not return).
 """
 from __future__ import annotations
@@ -204,7 +204,7 @@ def _drive(run: _Run, route: Route, net, plan: GlobalPlan, world: World, rngs: t
     props = scene.props
     prop_boxes = np.array(props, dtype=float).reshape(-1, 5)  # (P, 5) x, y, yaw, length, width
     end = None
-    alarm, stops = _deadline_alarm(), watch_stops()
+    alarm, stops = deadline_alarm(), watch_stops()
     loop0 = wallclock.perf_counter()
     lights_now = world.light_states(lights)
     while end is None:
@@ -263,7 +263,7 @@ def _agent_step(agent, inputs: dict, timestamp: float, timeout: float,
                 alarm: bool) -> tuple[Control, Prediction | None]:
     """The agent's control and prediction for one tick, under the step deadline; a
     non-finite control raises ValueError."""
-    control, pred = split_output(_step_with_deadline(agent, inputs, timestamp, timeout, alarm))
+    control, pred = split_output(step_with_deadline(agent, inputs, timestamp, timeout, alarm))
     if not control.is_finite():
         raise ValueError(f"non-finite control {control}")
     return control, pred
@@ -365,7 +365,7 @@ def _on_alarm(signum, frame) -> None:
         raise _timeout_error(_armed_timeout)
 
 
-def _deadline_alarm() -> bool:
+def deadline_alarm() -> bool:
     """Whether a SIGALRM timer can interrupt ``run_step`` here (the main thread, a platform
     with ``setitimer``); if so, installs the handler, once per route before its first step
     (reading the handler back every step cost 1-2 % of a tick: ``signal.getsignal``
@@ -377,10 +377,11 @@ def _deadline_alarm() -> bool:
     return True
 
 
-def _step_with_deadline(agent, inputs: dict, timestamp: float, timeout: float, alarm: bool):
-    """``agent.run_step(inputs, timestamp)``, ended after ``timeout`` s of wall time.
+def step_with_deadline(agent, inputs: dict, timestamp: float, timeout: float, alarm: bool, caller: int = 0):
+    """``agent.run_step(inputs, timestamp)``, ended after ``timeout`` s of wall time
+    (``caller``: the agent's number for the watching parent, harness.loop.agent.agent_call).
 
-    With ``alarm`` (``_deadline_alarm()``) a SIGALRM timer interrupts the agent, as the
+    With ``alarm`` (``deadline_alarm()``) a SIGALRM timer interrupts the agent, as the
     Leaderboard's watchdog interrupts its main thread (a sleeping or looping agent stops
     there; one inside a long C call, when it returns). Without it, or if the agent
     swallowed the interruption, the step's duration is checked when it returns."""
@@ -390,7 +391,7 @@ def _step_with_deadline(agent, inputs: dict, timestamp: float, timeout: float, a
         _armed_timeout = timeout
         signal.setitimer(signal.ITIMER_REAL, timeout)
     try:
-        with agent_call(timeout):
+        with agent_call(timeout, caller):
             out = agent.run_step(inputs, timestamp)
     finally:
         if alarm:

@@ -41,6 +41,12 @@ _MAX_ID_DIGITS = 9  # a --routes-subset bound with more digits names no route of
 WORKERS_PER_CORE = 2  # local worker processes per core, at most: each holds a libsumo (~400 MB)
 
 
+def check_agent_timeout(timeout: float) -> None:
+    """BadInput unless ``timeout`` (--agent-timeout) is a positive number of seconds."""
+    if not (math.isfinite(timeout) and timeout > 0):
+        raise BadInput(f"--agent-timeout {timeout}: must be a positive number of seconds")
+
+
 def check_workers(workers: int | None) -> None:
     """BadInput unless ``workers`` (local processes; None: one per core) is between 1 and
     WORKERS_PER_CORE per core of this computer."""
@@ -246,8 +252,7 @@ def evaluate(routes: str, agent: str, agent_config: str | None = None, out: Path
     model (controller.ego).
     """
     _check_count(repetitions)
-    if not (math.isfinite(agent_timeout) and agent_timeout > 0):
-        raise BadInput(f"--agent-timeout {agent_timeout}: must be a positive number of seconds")
+    check_agent_timeout(agent_timeout)
     backend.check()
     from scenarios.routefile import read_routes
     path = _route_set(routes)

@@ -148,7 +148,7 @@ def crash_record(job: Job, reason: str, status: str = FAILED_SIMULATION) -> dict
 
 
 # A worker whose agent call runs this long past its deadline [s] is ended (by the parent,
-# harness.runs.runner; in a Ray task by its own watch thread, harness.runs.ray_backend):
+# harness.runs.workers; in a Ray task by its own watch thread, harness.runs.ray_backend):
 # the agent ignored, cancelled or swallowed the in-process alarm, or hangs outside
 # run_step. Checked every WATCH_EVERY s, so a hung route ends within its deadline + 4 s
 # and the time it takes to end the process.
@@ -158,8 +158,12 @@ KILL_AFTER, WATCH_EVERY = 3.0, 1.0
 def hung_record(job: Job) -> dict:
     """The record of a route whose agent hung in a call past its deadline, its worker
     killed: "Failed - Agent crashed" with the Leaderboard's timeout words."""
-    return crash_record(job, f"Agent took longer than {job.agent_timeout:g}s to return from a call "
-                             "(its worker process was ended)", FAILED_AGENT)
+    return crash_record(job, hung_message(job.agent_timeout), FAILED_AGENT)
+
+
+def hung_message(timeout: float) -> str:
+    """What a route's record (or replay row) says of an agent call that ran past ``timeout`` [s]."""
+    return f"Agent took longer than {timeout:g}s to return from a call (its worker process was ended)"
 
 
 def traced_length(route: Route) -> float:

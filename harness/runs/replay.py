@@ -18,7 +18,13 @@ route (``set_global_plan``, ``setup``, ``sensors``), as in ``eval``; the output 
 held (harness.common.lock) while the replay runs. Agents that read the privileged
 ``world`` sensor are refused (the log keeps
 what the BEV draws, not the ids and speeds the expert reads). An agent that raises on a
-route gets a row with its message and no metrics there; the replay goes on.
+route gets a row with its message and no metrics there; the replay goes on. Every agent
+call runs under the deadline ``--agent-timeout`` (as in ``eval``): a ``run_step`` past it
+is interrupted by an alarm, and a worker whose agent hangs anyway (the alarm ignored or
+swallowed, a hang in ``setup``, ``sensors`` or ``destroy``) is killed by the parent
+(harness.runs.workers); that agent's row of the route says so and has no metrics, the
+route is replayed again by a new worker for the other agents. The table's paired figures
+leave out a route whose row has no metrics, as for an agent that raised.
 
 Outputs in ``--out``:
 
@@ -32,9 +38,9 @@ Outputs in ``--out``:
 from __future__ import annotations
 
 import csv
+import dataclasses
 import hashlib
 import json
-import multiprocessing as mp
 import os
 import re
 import zipfile
@@ -47,8 +53,10 @@ from tqdm import tqdm
 from files.atomic import savez_atomic, write_atomic
 from harness.common.errors import BadInput
 from harness.common.lock import FolderLock
-from harness.loop.agent import agent_for, check_agent_setup, forget_agent, split_output, validate_sensors
-from harness.loop.episode import sensor_inputs
+from harness.loop.agent import agent_call, agent_for, check_agent_setup, forget_agent, split_output, validate_sensors
+from harness.loop.episode import AGENT_TIMEOUT, deadline_alarm, sensor_inputs, step_with_deadline
+from harness.runs.jobs import hung_message
+from harness.runs.workers import HUNG, run_workers
 from harness.loop.scene_log import has_scene, scene_at
 from harness.scoring.records import STABILITY
 from harness.scoring.report import compare, markdown, stability_figures
@@ -69,6 +77,8 @@ class ReplayJob:
     names: tuple[str, ...]  # the agents to load (harness.loop.agent.load_agent)
     configs: tuple[str | None, ...]  # their setup() configs
     out: str  # the folder of the outputs/<key>.npz files
+    timeout: float = AGENT_TIMEOUT  # deadline of each agent call [s of wall time] (--agent-timeout)
+    dropped: tuple[tuple[int, str], ...] = ()  # (agent's place, message): agents not run on this route
 
 
 def route_digest(route) -> str:
@@ -96,19 +106,29 @@ def replay_route(job: ReplayJob) -> list[dict]:
              "pred_path": np.full((n, 20, 2), np.nan, np.float32),
              "pred_speed_wps": np.full((n, 10, 2), np.nan, np.float32)} for _ in job.agents]
     agents, specs, messages = [], [], [""] * len(job.agents)
+    dropped = dict(job.dropped)
     for i, (name, config) in enumerate(zip(job.names, job.configs)):
+        if i in dropped:
+            agents.append(None)
+            specs.append([])
+            messages[i] = dropped[i]
+            continue
         try:
-            agent = agent_for(name)
-            agent.set_global_plan(plan)
-            agent.setup(config)
-            spec = agent.sensors()
+            with agent_call(job.timeout, i):
+                agent = agent_for(name)
+            with agent_call(job.timeout, i):
+                agent.set_global_plan(plan)
+                agent.setup(config)
+            with agent_call(job.timeout, i):
+                spec = agent.sensors()
             validate_sensors(spec)
         except Exception as exc:  # noqa: BLE001 - an agent failure is its row's message
             forget_agent(name)
             agent, spec, messages[i] = None, [], f"set-up failed: {type(exc).__name__}: {exc}"
         agents.append(agent)
         specs.append(spec)
-    for t in range(n):
+    alarm = deadline_alarm()
+    for t in range(n if any(a is not None for a in agents) else 0):
         sc = scene_at(log, t)
         frame = bev.render(sc.ego, sc.snap, plan, sc.lights, sc.props, sc.stops)
         for i, agent in enumerate(agents):
@@ -116,7 +136,7 @@ def replay_route(job: ReplayJob) -> list[dict]:
                 continue
             try:
                 inputs = sensor_inputs(specs[i], sc.ego, plan, sc.progress, sc.snap, None, frame.copy)
-                control, pred = split_output(agent.run_step(inputs, sc.timestamp))
+                control, pred = split_output(step_with_deadline(agent, inputs, sc.timestamp, job.timeout, alarm, i))
             except Exception as exc:  # noqa: BLE001
                 messages[i] = f"tick {t}: {type(exc).__name__}: {exc}"
                 forget_agent(job.names[i])
@@ -128,22 +148,25 @@ def replay_route(job: ReplayJob) -> list[dict]:
                 o["pred_path"][t] = pred.path
             if pred is not None and pred.speed_wps is not None:
                 o["pred_speed_wps"][t] = pred.speed_wps
-    for agent in agents:
+    for i, agent in enumerate(agents):
         try:
             if agent is not None:
-                agent.destroy()
+                with agent_call(job.timeout, i):
+                    agent.destroy()
         except Exception as exc:  # noqa: BLE001 - destroy errors must not hide the route's outputs
-            i = agents.index(agent)
             messages[i] = messages[i] or f"destroy() raised {type(exc).__name__}: {exc}"
             forget_agent(job.names[i])
     savez_atomic(Path(job.out) / f"{job.key}.npz", **{f"a{i}_{k}": v for i, o in enumerate(outs) for k, v in o.items()})
     v = log["v"][:n]
-    rows = []
-    for i, o in enumerate(outs):
-        metrics = stability({"v": v, **o}) if not messages[i] else dict.fromkeys(STABILITY, float("nan"))
-        rows.append({"key": job.key, "route_id": route.id, "agent": job.agents[i], "ticks": n,
-                     "moving_ticks": int(moving_ticks(v).sum()), "message": messages[i], **metrics})
-    return rows
+    moving = int(moving_ticks(v).sum())
+    return [_row(job, i, n, moving, messages[i], stability({"v": v, **o}) if not messages[i] else None)
+            for i, o in enumerate(outs)]
+
+
+def _row(job: ReplayJob, i: int, ticks: int, moving: int, message: str, metrics: dict | None) -> dict:
+    """Agent ``i``'s row of the job's route (COLUMNS); ``metrics`` None: NaN (a failed agent)."""
+    return {"key": job.key, "route_id": job.route.id, "agent": job.agents[i], "ticks": ticks,
+            "moving_ticks": moving, "message": message, **(metrics or dict.fromkeys(STABILITY, float("nan")))}
 
 
 def _routes_of_run(run: Path, routes: str | None) -> dict[str, object]:
@@ -175,17 +198,19 @@ def _routes_of_run(run: Path, routes: str | None) -> dict[str, object]:
     return out
 
 
-def check_agents(agents: list[str], plan=None) -> tuple[list[str], list[str | None]]:
+def check_agents(agents: list[str], plan=None,
+                 timeout: float = AGENT_TIMEOUT) -> tuple[list[str], list[str | None]]:
     """The agents' names and configs (``--agent NAME``, ``module:Class`` or ``PATH.pt``),
-    checked, each built once (harness.loop.agent.check_agent_setup, on a route's ``plan``):
-    BadInput for an unknown or repeated one, or one that reads the ``world``."""
+    checked, each built once (harness.loop.agent.check_agent_setup, on a route's ``plan``,
+    each call within ``timeout`` [s]): BadInput for an unknown or repeated one, or one
+    that reads the ``world``."""
     if not agents:
         raise BadInput("replay needs at least one --agent")
     if len(set(agents)) < len(agents):
         raise BadInput(f"--agent {next(a for a in agents if agents.count(a) > 1)!r} is given twice")
     names, configs = [], []
     for a in agents:
-        name, config, specs = check_agent_setup(a, None, plan)
+        name, config, specs = check_agent_setup(a, None, plan, timeout)
         if any(s.get("type") == "world" for s in specs):
             raise BadInput(f"--agent {a!r} reads the privileged 'world' sensor, which a replay cannot give "
                            "(the log keeps what the BEV draws): replay agents that drive from the BEV")
@@ -195,9 +220,12 @@ def check_agents(agents: list[str], plan=None) -> tuple[list[str], list[str | No
 
 
 def plan_replay(run: Path, agents: list[str], out: Path | None, routes: str | None = None,
-                subset: str | None = None) -> list[ReplayJob]:
+                subset: str | None = None, timeout: float = AGENT_TIMEOUT) -> list[ReplayJob]:
     """The replay's jobs, every input checked first (BadInput naming the problem and the fix);
-    ``out`` None: check the reference and the agents only."""
+    ``out`` None: check the reference and the agents only. ``timeout``: the deadline of
+    every agent call [s] (--agent-timeout)."""
+    from harness.runs.evaluate import check_agent_timeout
+    check_agent_timeout(timeout)
     from harness.runs.evaluate import select_routes
     if not (run / "logs").is_dir():
         raise BadInput(f"{run} is not a run folder of 'sumo-scimm eval' (no logs/)")
@@ -205,7 +233,7 @@ def plan_replay(run: Path, agents: list[str], out: Path | None, routes: str | No
         raise BadInput(f"{out} already holds a replay: choose another --out")
     by_key = _routes_of_run(run, routes)
     from harness.runs.evaluate import first_plan
-    names, configs = check_agents(agents, first_plan(next(iter(by_key.values()))) if by_key else None)
+    names, configs = check_agents(agents, first_plan(next(iter(by_key.values()))) if by_key else None, timeout)
     ids = sorted({r.id for r in by_key.values()}, key=lambda i: (len(i), i))
     keep = set(select_routes(subset, ids))
     jobs = []
@@ -227,26 +255,38 @@ def plan_replay(run: Path, agents: list[str], out: Path | None, routes: str | No
             raise BadInput(f"{log} keeps no scene state (a run from before scenes were logged): evaluate "
                            "the reference again with this sumo-scimm")
         jobs.append(ReplayJob(key, route, str(log), tuple(agents), tuple(names), tuple(configs),
-                              str(out / "outputs") if out is not None else ""))
+                              str(out / "outputs") if out is not None else "", timeout))
     if not jobs:
         raise BadInput(f"--routes-subset {subset!r} selects no route run of {run}")
     return jobs
 
 
 def run_replay(jobs: list[ReplayJob], workers: int | None = None, progress: bool = True) -> list[dict]:
-    """Every job's rows, on ``workers`` processes (None: every core; 1: in this process)."""
+    """Every job's rows, on ``workers`` spawned processes (None: every core) watched by this
+    one (harness.runs.workers). A worker killed in an agent's call past its deadline +
+    KILL_AFTER (or dead in one) fails that agent on that route, as an agent that raises
+    there: the route is replayed again by a new worker without it (the other agents' rows
+    as from an undisturbed replay), its row keeping the message and no metrics. A worker
+    dead outside an agent's call fails the route for every agent (rows of 0 ticks), and
+    the route is not replayed again."""
     workers = min(workers or os.cpu_count() or 1, len(jobs))
     rows: list[dict] = []
     bar = tqdm(total=len(jobs), desc="replay", unit="route", disable=not progress or None)
-    if workers == 1:
-        for job in jobs:
-            rows += replay_route(job)
-            bar.update(1)
-    else:
-        with mp.get_context("spawn").Pool(workers) as pool:
-            for r in pool.imap_unordered(replay_route, jobs):
-                rows += r
-                bar.update(1)
+
+    def emit(job: ReplayJob, out: list[dict]) -> None:
+        rows.extend(out)
+        bar.update(1)
+
+    def lost(job: ReplayJob, reason, caller: int | None) -> ReplayJob | None:
+        words = hung_message(job.timeout) if reason == HUNG else f"worker process died (exit code {reason})"
+        gone = dict(job.dropped)
+        if caller is None:
+            emit(job, [_row(job, i, 0, 0, gone.get(i, words), None) for i in range(len(job.agents))])
+            return None
+        gone[caller] = words
+        return dataclasses.replace(job, dropped=tuple(sorted(gone.items())))
+
+    run_workers(jobs, workers, replay_route, emit, lost)
     bar.close()
     order = {j.key: i for i, j in enumerate(jobs)}
     agents = list(jobs[0].agents)
@@ -255,21 +295,23 @@ def run_replay(jobs: list[ReplayJob], workers: int | None = None, progress: bool
 
 def replay(run: Path, agents: list[str], out: Path, *, routes: str | None = None, subset: str | None = None,
            workers: int | None = None, n_boot: int = 2000, progress: bool = True,
-           labels: list[str] | None = None) -> str:
+           labels: list[str] | None = None, agent_timeout: float = AGENT_TIMEOUT) -> str:
     """Replay reference run ``run`` with ``agents`` into ``out`` (module docstring); returns
     the comparison table as Markdown. ``labels``: names for the agents in replay.csv and the
-    table (e.g. arm names for checkpoint paths; default the ``agents`` strings)."""
+    table (e.g. arm names for checkpoint paths; default the ``agents`` strings).
+    ``agent_timeout``: the deadline of every agent call [s of wall time]."""
     if labels is not None and (len(labels) != len(agents) or len(set(labels)) < len(labels)):
         raise ValueError(f"labels {labels} must name each of the {len(agents)} agents once")
     with FolderLock(out):
-        return _replay_held(run, agents, out, routes, subset, workers, n_boot, progress, labels)
+        return _replay_held(run, agents, out, routes, subset, workers, n_boot, progress, labels, agent_timeout)
 
 
 def _replay_held(run: Path, agents: list[str], out: Path, routes: str | None, subset: str | None,
-                 workers: int | None, n_boot: int, progress: bool, labels: list[str] | None) -> str:
+                 workers: int | None, n_boot: int, progress: bool, labels: list[str] | None,
+                 agent_timeout: float) -> str:
     """``replay`` in the output folder it holds."""
     from harness.runs.provenance import software
-    jobs = plan_replay(run, agents, out, routes, subset)
+    jobs = plan_replay(run, agents, out, routes, subset, agent_timeout)
     (out / "outputs").mkdir(parents=True, exist_ok=True)
     rows = run_replay(jobs, workers, progress)
     names = dict(zip(agents, labels or agents))

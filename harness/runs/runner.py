@@ -24,8 +24,9 @@ and the repetition (sumo_scimm.cli), so records do not depend on the number of w
 backend. A worker that dies (kill -9, segfault) has its route recorded as "Failed -
 Simulation crashed" with the reason; a new worker takes over and the run goes on. A worker
 whose agent call (construction, setup, sensors, run_step, destroy) runs KILL_AFTER s past
-its deadline (``--agent-timeout``) is killed by the parent and its route recorded as
-"Failed - Agent crashed" (the agent timed out), whatever the agent did with the alarm.
+its deadline (``--agent-timeout``) is killed by the parent (harness.runs.workers) and its
+route recorded as "Failed - Agent crashed" (the agent timed out), whatever the agent did
+with the alarm.
 ``resume`` keeps the complete records already in ``records.jsonl`` and runs only the rest
 (a torn last line is dropped and redone); it refuses (BadInput) a folder whose run.jsonc
 differs from the resumed run's (other options, another checkpoint; other software when
@@ -45,11 +46,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import multiprocessing as mp
 import os
-import signal
-import time
-from multiprocessing.connection import wait
 from pathlib import Path
 
 import numpy as np
@@ -58,45 +55,22 @@ from tqdm import tqdm
 from files.atomic import signals_held, write_atomic
 from harness.common.errors import BadInput
 from harness.common.lock import check_folder, folder_identity, open_nofollow
-from harness.loop.agent import watch_agent_calls
-from harness.runs.jobs import (KILL_AFTER, WATCH_EVERY, Job, crash_record, hung_record, release_freed_memory,
-                               run_job_safely, worker_stats)
+from harness.runs.jobs import Job, crash_record, hung_record, release_freed_memory, run_job_safely, worker_stats
+from harness.runs.workers import HUNG, run_workers
 from harness.scoring.records import parse_record, record_line
 from harness.runs.provenance import OLD_RUN_FILE, RUN_FILE, check_same_run, run_identity
 
 
-def _worker(conn, deadline) -> None:
-    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C reaches the parent, which ends its workers
-    watch_agent_calls(deadline)
-    routes_run = 0
-    while True:
-        try:
-            job = conn.recv()
-        except (EOFError, OSError):  # the parent is gone
-            return
-        if job is None:
-            return
-        try:
-            rec = run_job_safely(job)
-        except OSError as exc:  # an output it cannot write stops the run: tell the parent
-            try:
-                conn.send((_portable(exc), None))
-            except OSError:
-                pass
-            return
-        routes_run += 1
-        release_freed_memory()  # before the memory sample: what the worker holds, not its peak
-        try:
-            conn.send((rec, worker_stats(routes_run)))
-        except OSError:  # the parent is gone (killed): nobody to report to
-            return
+_routes_run = 0  # routes this worker process has run (its workers.jsonl lines)
 
 
-def _portable(exc: OSError) -> OSError:
-    """A plain OSError of the same kind, path and text (any OSError subclass pickles so)."""
-    if exc.errno is None:
-        return OSError(str(exc))
-    return OSError(exc.errno, exc.strerror or os.strerror(exc.errno), exc.filename)
+def _eval_task(job: Job) -> tuple[dict, dict]:
+    """In a worker: the route's record and the worker's stats after it."""
+    global _routes_run
+    rec = run_job_safely(job)
+    _routes_run += 1
+    release_freed_memory()  # before the memory sample: what the worker holds, not its peak
+    return rec, worker_stats(_routes_run)
 
 
 def _append(f, line: str, path: Path, sync: bool = False) -> None:
@@ -159,82 +133,14 @@ def _keep_complete_lines(path: Path, resume: bool, check: bool = False) -> list[
 
 
 def _run_local(jobs: list[Job], workers: int, emit) -> None:
-    """Run jobs on ``workers`` spawned processes; ``emit(job, record, stats)`` as each ends
-    (stats None when the worker died). Interrupted (Ctrl-C), it ends its workers."""
-    ctx = mp.get_context("spawn")
-    pending = list(reversed(jobs))
-    slots: dict = {}  # connection -> (process, job or None)
-    deadlines: dict = {}  # connection -> the worker's agent-call deadline (harness.loop.agent.agent_call)
+    """Run jobs on ``workers`` spawned processes (harness.runs.workers); ``emit(job, record,
+    stats)`` as each ends (stats None when the worker died or was killed: a hung agent's
+    route is "Failed - Agent crashed", harness.runs.jobs.hung_record)."""
+    def lost(job: Job, reason, caller) -> None:
+        emit(job, hung_record(job) if reason == HUNG else
+             crash_record(job, f"worker process died (exit code {reason})"), None)
 
-    def start_worker():
-        parent, child = ctx.Pipe()
-        deadline = ctx.RawValue("d", 0.0)
-        p = ctx.Process(target=_worker, args=(child, deadline), daemon=True)
-        p.start()
-        child.close()
-        slots[parent] = (p, None)
-        deadlines[parent] = deadline
-
-    def end_hung_workers():
-        """Kill every worker whose agent call ran KILL_AFTER s past its deadline; its route
-        is recorded ("Failed - Agent crashed", harness.runs.jobs.hung_record), a new
-        worker takes over."""
-        now = time.monotonic()
-        for conn, (p, job) in list(slots.items()):
-            due = deadlines[conn].value
-            if job is None or not due or now < due + KILL_AFTER:
-                continue
-            p.kill()
-            p.join()
-            del slots[conn], deadlines[conn]
-            emit(job, hung_record(job), None)
-            if pending:
-                start_worker()
-
-    try:
-        for _ in range(min(workers, len(jobs))):
-            start_worker()
-        while slots:
-            for conn, (p, job) in list(slots.items()):
-                if job is None:
-                    if pending:
-                        nxt = pending.pop()
-                        conn.send(nxt)
-                        slots[conn] = (p, nxt)
-                    else:
-                        conn.send(None)
-                        p.join()
-                        del slots[conn], deadlines[conn]
-            if not slots:
-                break
-            ready = wait(list(slots) + [p.sentinel for p, _ in slots.values()], timeout=WATCH_EVERY)
-            if not ready:
-                end_hung_workers()
-                continue
-            for conn, (p, job) in list(slots.items()):
-                if conn in ready:
-                    try:
-                        rec, stats = conn.recv()
-                    except (EOFError, OSError):
-                        rec = None
-                    if isinstance(rec, OSError):  # the worker could not write its route's files
-                        raise rec
-                    if rec is not None:
-                        emit(job, rec, stats)
-                        slots[conn] = (p, None)
-                        continue
-                if p.sentinel in ready or not p.is_alive():
-                    p.join()
-                    del slots[conn], deadlines[conn]
-                    if job is not None:
-                        emit(job, crash_record(job, f"worker process died (exit code {p.exitcode})"), None)
-                    if pending:
-                        start_worker()
-            end_hung_workers()
-    finally:
-        for p, _ in slots.values():  # only after an interruption or an error
-            p.terminate()
-            p.join()
+    run_workers(jobs, workers, _eval_task, lambda job, out: emit(job, *out), lost)
 
 
 def check_results_file(checkpoint: Path, jobs: list[Job], resume: bool) -> None:

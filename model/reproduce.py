@@ -246,10 +246,38 @@ def _tables_and_summary(out: Path, st: Stages, seeds: list[int], train_dir: Path
         parts += ["", f"## Tables 3-4 on the second set, {label}", "", text2, "", rank]
     if replays:
         parts += ["", f"## Replay: every student fed the expert's inputs on {main}", "", *replays]
+    archive_records(out, {Path(main).stem: pooled[0], **({str(label2): pooled2[0]} if pooled2 is not None else {})})
     figs = _figures(out, train_dir, runs, seeds, st)
     text = _summary(out, seeds, st.times, "\n".join(parts), figs, list(runs), main, label2)
     (out / "README.md").write_text(text)
     return text
+
+
+ARCHIVED = ("records.csv", "results.json")  # what ``report`` reads of a run folder (harness.scoring.report)
+
+
+def archive_records(out: Path, runs: dict[str, dict[str, list[Path]]]) -> None:
+    """``OUT/records``: what rebuilds the tables of Tables 3-4 and the claims, small enough to
+    keep in a repository: ``<set>/<arm>_s<seed>/{records.csv,results.json}.gz`` of every
+    evaluation in ``runs`` ({set: {arm: run folders}}; files.compressed, byte-identical for
+    identical records), ``models/<arm>_s<seed>.json``, each student's manifest, and
+    ``stages.json``, the stage wall times. ``sumo-scimm report ARM=OUT/records/SET/ARM_s0,...
+    ...`` reads them as they are."""
+    from files.compressed import gzip_copy
+    dest = out / "records"
+    dest.mkdir(exist_ok=True)
+    if (out / "stages.json").is_file():
+        shutil.copyfile(out / "stages.json", dest / "stages.json")
+    for route_set, arms in runs.items():
+        for folders in arms.values():
+            for run in folders:
+                (dest / route_set / run.name).mkdir(parents=True, exist_ok=True)
+                for name in ARCHIVED:
+                    gzip_copy(run / name, dest / route_set / run.name / f"{name}.gz")
+                manifest = out / "models" / run.name / "manifest.json"
+                if manifest.is_file():
+                    (dest / "models").mkdir(parents=True, exist_ok=True)
+                    shutil.copyfile(manifest, dest / "models" / f"{run.name}.json")
 
 
 def _figures(out: Path, train_dir: Path, runs: dict[str, list[Path]], seeds: list[int], st: Stages) -> list[str]:

@@ -123,11 +123,12 @@ def _score(args: argparse.Namespace) -> int:
 
 def _report(args: argparse.Namespace) -> int:
     from harness.common.lock import FolderLock
-    from harness.scoring.report import ReportError, parse_arms, write_report
+    from harness.scoring.report import ReportError, parse_arms
+    from model.arm_tables import write_set_tables  # the tables of 'sumo-scimm reproduce'
     try:
         arms = parse_arms(args.runs)
         with FolderLock(Path(args.out)):
-            print(write_report(arms, Path(args.out)))
+            print(write_set_tables(arms, Path(args.out))[0])
     except ReportError as exc:
         raise BadInput(str(exc)) from None
     return 0
@@ -212,12 +213,14 @@ def register(sub: argparse._SubParsersAction) -> None:
 
     rp = sub.add_parser("report", help="the paper's Tables 3 and 4 for several arms, with seed-paired intervals")
     rp.add_argument("runs", nargs="+", metavar="ARM",
-                    help="run folder of 'sumo-scimm eval', or NAME=DIR[,DIR...] for an arm of several runs "
-                         "(seeds, in seed order: the i-th folder of every arm is paired with the i-th of the "
-                         "others); the first arm is the baseline")
+                    help="run folder of 'sumo-scimm eval' (its records.csv and results.json plain or .gz), "
+                         "or NAME=DIR[,DIR...] for an arm of several runs (seeds, in seed order: the i-th "
+                         "folder of every arm is paired with the i-th of the others); the reference arms are "
+                         "'baseline' and 'control' when present, else the first arm")
     rp.add_argument("--out", type=out_arg, default="report",
-                     help="folder for the tables as .csv and .md: table3, table4 "
-                    "(and _common), b2d, per_hazard (default report)")
+                    help="folder for the tables as .csv and .md: table3, table4 (and _common, _vs_control), "
+                         "claims (the paper's claims, Holm-corrected), hazard_ds, b2d, per_hazard "
+                         "(default report)")
     rp.set_defaults(func=_report)
 
     co = sub.add_parser("collect", help="drive the expert over a route set and record a dataset at 4 Hz")

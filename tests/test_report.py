@@ -210,3 +210,27 @@ def test_a_new_stability_metric_is_one_registry_entry_that_reaches_table4_and_th
     assert "steer rate lower |" in md.splitlines()[2]
     claim = list(csv.DictReader(open(tmp_path / "tables" / "claims.csv")))[0]
     assert float(claim["steer_rate_moving diff"]) == pytest.approx(-1.0)
+
+
+def test_a_run_folder_kept_gzip_compressed_gives_the_same_tables_through_the_command(tmp_path):
+    from files.compressed import gzip_copy
+    from sumo_scimm.cli import main
+    rows_b = [("0_rep0", 40.0, 1, 0.3, 2.0), ("1_rep0", 60.0, 0, 0.3, 4.0), ("2_rep0", 55.0, 0, 0.2, 3.0)]
+    rows_s = [("0_rep0", 66.0, 0, 0.3, 1.0), ("1_rep0", 61.0, 0, 0.3, 1.5), ("2_rep0", 50.0, 1, 0.2, 2.5)]
+    plain = {"baseline": _run(tmp_path / "b", rows_b), "scimm": _run(tmp_path / "s", rows_s)}
+    packed = {}
+    for arm, folder in plain.items():
+        (tmp_path / "gz" / arm).mkdir(parents=True)
+        for name in ("records.csv", "results.json"):
+            gzip_copy(folder / name, tmp_path / "gz" / arm / f"{name}.gz")
+            first = (tmp_path / "gz" / arm / f"{name}.gz").read_bytes()
+            gzip_copy(folder / name, tmp_path / "gz" / arm / f"{name}.gz")  # no time stamp: same bytes
+            assert (tmp_path / "gz" / arm / f"{name}.gz").read_bytes() == first
+        packed[arm] = tmp_path / "gz" / arm
+    assert main(["report", *(f"{a}={d}" for a, d in plain.items()), "--out", str(tmp_path / "t1")]) == 0
+    assert main(["report", *(f"{a}={d}" for a, d in packed.items()), "--out", str(tmp_path / "t2")]) == 0
+    made = sorted(p.name for p in (tmp_path / "t1").iterdir())
+    assert "claims.md" in made and "table3.md" in made
+    assert made == sorted(p.name for p in (tmp_path / "t2").iterdir())
+    for name in made:
+        assert (tmp_path / "t1" / name).read_text() == (tmp_path / "t2" / name).read_text(), name

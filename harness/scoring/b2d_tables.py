@@ -21,6 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
+from files.compressed import read_text, stored
 from harness.common.errors import BadInput
 from harness.scoring.bench2drive import mean_of, metric_info, route_efficiency, route_smoothness, success
 
@@ -50,7 +51,7 @@ def route_figures(folder: Path) -> list[dict]:
     [0, 1], None below 3 ticks)."""
     path = folder / "records.jsonl"
     try:
-        lines = path.read_text().splitlines()
+        lines = read_text(path).splitlines()
     except (OSError, UnicodeDecodeError) as exc:
         raise BadInput(f"{path}: cannot be read ({type(exc).__name__}: {exc})") from None
     out, rules = [], None
@@ -118,8 +119,9 @@ def _fmt(x: float) -> str:
 
 def b2d_tables(arms: dict[str, list[Path]]) -> list[tuple[str, list[dict], str]]:
     """[(file stem, CSV rows, Markdown)] of the two tables (module docstring) for {arm: run
-    folders}; none when a folder has no records.jsonl (a table written by hand)."""
-    if not all((f / "records.jsonl").is_file() for folders in arms.values() for f in folders):
+    folders}; none when a folder has no records.jsonl (plain or .gz; a table written by hand, an
+    archive that keeps records.csv alone)."""
+    if not all(stored(f / "records.jsonl") for folders in arms.values() for f in folders):
         return []
     runs = {name: [route_figures(f) for f in folders] for name, folders in arms.items()}
     rng = np.random.default_rng(SEED)

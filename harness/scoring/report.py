@@ -31,12 +31,14 @@ Records of a run made before a stability column existed get it from the run's lo
 from __future__ import annotations
 
 import csv
+import io
 import json
 import math
 from pathlib import Path
 
 import numpy as np
 
+from files.compressed import read_text, stored
 from harness.scoring import stability as stab
 from harness.scoring.paired import bootstrap_p, mde, t_interval
 from harness.scoring.statuses import COMPLETED, PERFECT
@@ -77,14 +79,15 @@ class ReportError(ValueError):
 
 # --- reading run folders -----------------------------------------------------------------
 def check_run(folder: Path) -> None:
-    """ReportError unless ``folder`` is a finished run folder (results.json and records.csv)."""
+    """ReportError unless ``folder`` is a finished run folder (results.json and records.csv,
+    each plain or gzip-compressed: files.compressed)."""
     res, rec = folder / "results.json", folder / "records.csv"
-    if not res.is_file() or not rec.is_file():
+    if stored(res) is None or stored(rec) is None:
         raise ReportError(f"{folder} is not a run folder (needs results.json and records.csv from 'sumo-scimm eval')")
     try:
-        data = json.loads(res.read_text())
+        data = json.loads(read_text(res))
         prog = data["_checkpoint"].get("progress")
-    except (json.JSONDecodeError, UnicodeDecodeError, KeyError, TypeError, ValueError, AttributeError) as exc:
+    except (OSError, json.JSONDecodeError, UnicodeDecodeError, KeyError, TypeError, ValueError, AttributeError) as exc:
         raise ReportError(f"{res}: not a Leaderboard results file ({type(exc).__name__}: {exc})") from None
     # every route run done: Finished, or Crashed (a route's simulation crashed; the run went on)
     if data.get("entry_status") not in ("Finished", "Crashed") or not data["_checkpoint"].get("global_record"):
@@ -107,10 +110,9 @@ def route_rows(folder: Path) -> dict[str, dict]:
     check_run(folder)
     path = folder / "records.csv"
     try:
-        with open(path, newline="") as f:
-            reader = csv.DictReader(f)
-            rows = list(reader)
-            header = set(reader.fieldnames or ())
+        reader = csv.DictReader(io.StringIO(read_text(path), newline=""))
+        rows = list(reader)
+        header = set(reader.fieldnames or ())
         columns = stability_columns()
         missing = [k for k in columns if k not in header]
         out = {}
@@ -122,7 +124,7 @@ def route_rows(folder: Path) -> dict[str, dict]:
                              "coll": sum(float(r[k]) for k in COLLISIONS), "km": float(r["km_driven"]),
                              "status": r["status"], **values}
         return out
-    except (KeyError, TypeError, ValueError, UnicodeDecodeError, csv.Error) as exc:
+    except (OSError, KeyError, TypeError, ValueError, UnicodeDecodeError, csv.Error) as exc:
         raise ReportError(f"{path}: not a records.csv of 'sumo-scimm eval' ({type(exc).__name__}: {exc})") from None
 
 

@@ -31,10 +31,12 @@ present, each of its type and in its range, and a Leaderboard record (``lb``) th
 from __future__ import annotations
 
 import csv
+import io
 import json
 import math
 from pathlib import Path
 
+from files.compressed import read_text
 from harness.scoring.records import COUNT_KEYS, RECORD_FIELDS, STABILITY
 
 # field -> (low, high, low is open)
@@ -175,10 +177,9 @@ def run_folder_problem(folder: Path) -> str | None:
     finite number in its range, or with another number of rows than results.json's records."""
     res, rec = Path(folder) / "results.json", Path(folder) / "records.csv"
     try:
-        data = json.loads(res.read_text())
+        data = json.loads(read_text(res))
         records = data["_checkpoint"]["records"]
-        with open(rec, newline="") as f:
-            rows = list(csv.DictReader(f))
+        rows = list(csv.DictReader(io.StringIO(read_text(rec), newline="")))
     except (OSError, ValueError, KeyError, TypeError, UnicodeDecodeError, csv.Error):
         return None
     if not isinstance(records, list):

@@ -48,8 +48,8 @@ batches, on the 128k-frame training set, so an epoch sees about half of it; 0 = 
 draw). The cosine schedule spans all ``epochs``; after every epoch the validation L_origin
 is computed and the weights of the best epoch so far are kept in memory (a strictly lower
 loss is a new best, so ties keep the earlier epoch). By default every arm runs the whole
-schedule and the best epoch of it is saved: with early stopping (patience 3) a baseline
-stopped at its 7th of 10 epochs and kept the 4th, because the validation speed-waypoint
+schedule and the best epoch of it is saved: with early stopping (patience 3; software 0.2.0)
+a baseline stopped at its 7th of 10 epochs and kept the 4th, because the validation speed-waypoint
 loss jumps by about 15 % from epoch to epoch early in the schedule, while other arms ran
 all 10; the arms then differed in training length. ``patience`` (``--patience``) still
 stops a training after that many epochs without a new best. The manifest and
@@ -60,12 +60,13 @@ step budget ran out; ``no_val``, no validation set, so the last epoch is saved;
 criterion is this: it is the one loss every arm shares (L_origin on ``val``), it needs no
 extra run per arm, and the evaluation routes never take part in it.
 
-Schedule length (EPOCHS x EPOCH_STEPS = 3,200 steps, 6-7 min on 2 cores): set by docs/design.md §11's
-target for ``reproduce``, five arms of a seed trained and evaluated in <= 75 min on 2 cores
-(docs/results.md has the stage times). Its cost on ``val`` (seed 0, students with the speed
-input): best L_origin 1.896 (control) and 1.886 (SC-IMM) after 3,200 steps, against 1.732
-and 1.673 after 10 epochs of whole draws (7,902 steps, about 15 min). Longer trainings:
-``--epochs`` and ``--epoch-steps``.
+Schedule length (EPOCHS x EPOCH_STEPS = 3,200 steps, 5-11 min per arm on a 2-core Intel Xeon
+in the seed-0 ``reproduce`` run): set by docs/design.md §11's target for ``reproduce``, five
+arms of a seed trained and evaluated in <= 75 min on 2 cores (``OUT/stages.json`` has the
+stage times). Its cost on ``val`` (software 0.2.0, seed 0, students with the speed input, one
+training each): best L_origin 1.896 (control) and 1.886 (SC-IMM) after 3,200 steps, against
+1.732 and 1.673 after 10 epochs of whole draws (7,902 steps, about 15 min); docs/student.md,
+"Training". Longer trainings: ``--epochs`` and ``--epoch-steps``.
 
 Determinism: torch.manual_seed(seed), deterministic algorithms, a fixed thread count, and
 one numpy generator (seed) for sample order and views, drawn for every epoch up front (an

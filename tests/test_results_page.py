@@ -1,0 +1,76 @@
+"""docs/results.md is rebuilt from the records the repository keeps (docs/results/records).
+
+Every table of the page sits between ``<!-- sumo-scimm report: SET/FILE -->`` and
+``<!-- end -->`` and must equal, character for character, the file FILE that
+``sumo-scimm report`` writes from the committed records of evaluation set SET (the arms in
+the order of ``sumo-scimm reproduce``, each arm's seeds in seed order, as reproduce pairs
+them). Every other number of the page with a decimal point must appear in those rebuilt
+tables, in the stage-time table ``reproduce`` prints from the committed stages.json, or in
+a committed JSON file (the students' manifests): a figure typed by hand that no committed
+file holds fails.
+"""
+from __future__ import annotations
+
+import json
+import re
+from pathlib import Path
+
+import pytest
+
+from model.arm_tables import stage_table
+from model.reproduce import ARMS, EVAL_SET
+from sumo_scimm.cli import main
+
+ROOT = Path(__file__).resolve().parents[1]
+PAGE = ROOT / "docs" / "results.md"
+RECORDS = ROOT / "docs" / "results" / "records"
+TABLE = re.compile(r"<!-- sumo-scimm report: (\S+?)/(\S+?) -->\n(.*?)\n<!-- end -->", re.S)
+DECIMAL = re.compile(r"(?<![\w.])[-+]?\d+\.\d+(?!\.\d|\w)")  # a version such as 0.2.0 is not a figure
+
+
+def _arms(route_set: Path) -> list[str]:
+    """``NAME=DIR,DIR...`` for every arm with committed runs of ``route_set``."""
+    out = []
+    for arm, _ in ARMS:
+        runs = sorted(route_set.glob(f"{arm}_s*"), key=lambda d: int(d.name.rsplit("_s", 1)[1]))
+        if runs:
+            out.append(f"{arm}=" + ",".join(str(d) for d in runs))
+    return out
+
+
+@pytest.fixture(scope="module")
+def rebuilt(tmp_path_factory) -> dict[str, Path]:
+    """{evaluation set: the folder ``sumo-scimm report`` wrote from its committed records}."""
+    sets = sorted(d for d in RECORDS.iterdir() if d.is_dir() and d.name != "models")
+    assert sets, f"no committed records under {RECORDS}"
+    out = {}
+    for route_set in sets:
+        folder = tmp_path_factory.mktemp(route_set.name)
+        assert main(["report", *_arms(route_set), "--out", str(folder)]) == 0
+        out[route_set.name] = folder
+    return out
+
+
+def test_every_table_of_the_results_page_is_what_report_writes_from_the_committed_records(rebuilt):
+    text = PAGE.read_text()
+    tables = TABLE.findall(text)
+    assert len(tables) >= 2, "the results page shows no rebuilt table"
+    for route_set, name, shown in tables:
+        assert route_set in rebuilt, f"{route_set}: no committed records of this set"
+        made = (rebuilt[route_set] / name).read_text().rstrip("\n")
+        assert shown == made, f"the table {route_set}/{name} differs from what report writes from the records"
+
+
+def test_every_other_figure_of_the_results_page_is_in_a_rebuilt_table_or_a_committed_file(rebuilt):
+    known = "\n".join(f.read_text() for folder in rebuilt.values() for f in folder.glob("*.md"))
+    known += "\n".join(f.read_text() for f in RECORDS.rglob("*.json"))
+    seeds = sorted({int(d.name.rsplit("_s", 1)[1]) for d in RECORDS.glob("*/*_s*") if d.is_dir()})
+    second = next((s for s in rebuilt if s != EVAL_SET), None)
+    known += stage_table(json.loads((RECORDS / "stages.json").read_text()), [a for a, _ in ARMS], seeds,
+                         EVAL_SET, second)
+    prose = TABLE.sub("", PAGE.read_text())
+    figures = set(DECIMAL.findall(prose))
+    assert figures, "the page's prose quotes no figure (nothing to check)"
+    in_files = set(DECIMAL.findall(known))
+    unknown = sorted(f for f in figures if f not in in_files and f.lstrip("+") not in in_files)
+    assert not unknown, f"figures of docs/results.md that no committed file holds: {unknown}"

@@ -30,7 +30,7 @@ def read_text(path: Path) -> str:
     found = stored(path)
     if found is None:
         raise FileNotFoundError(2, "No such file (nor a .gz of it)", str(path))
-    if found.suffix == ".gz" and found != Path(path):
+    if found != Path(path):  # only the .gz exists
         return gzip.decompress(found.read_bytes()).decode()
     return found.read_text()
 

@@ -369,9 +369,6 @@ def write_report(arms: dict[str, list[Path]] | list[Path], out: Path, n_boot: in
     return "\n\n".join(md for _, _, md in made)
 
 
-write_arm_report = write_report  # the name ``sumo-scimm reproduce`` calls it by
-
-
 def arm_figures(folders: list[Path], n_boot: int = BOOTSTRAP, seed: int = BOOT_SEED) -> dict[str, tuple[float, float, float]]:
     """{figure: (mean over the runs, 2.5 %, 97.5 %)} of one arm's runs (its seeds), every
     figure of Tables 3 and 4 (the arm's interval of the module docstring)."""

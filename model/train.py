@@ -68,9 +68,10 @@ arms of a seed trained and evaluated in <= 75 min on 2 cores (``OUT/stages.json`
 stage times). Its cost on ``val`` (software 0.2.0, seed 0, students with the speed input, one
 training each): best L_origin 1.896 (control) and 1.886 (SC-IMM) after 3,200 steps, against
 1.732 and 1.673 after 10 epochs of whole draws (7,902 steps, about 15 min); docs/student.md,
-"Training". Longer trainings: ``--epochs`` and ``--epoch-steps``. Shorter ones (2,400
-steps, also with ``--lr 2e-3``; batch 64) lost validation loss and `val` DS on two seeds
-(docs/student.md, "Cost of one arm and seed").
+"Training". Longer trainings: ``--epochs`` and ``--epoch-steps``. Cheaper ones tried on
+`val` (batch 64; 2,000-2,400 steps, also at ``--lr 2e-3``) lost validation loss and `val`
+DS on average, or were not shown to be no worse (docs/student.md, "Cost of one arm and
+seed").
 
 Determinism: torch.manual_seed(seed), deterministic algorithms, a fixed thread count, and
 one numpy generator (seed) for sample order and views, drawn for every epoch up front (an
@@ -247,9 +248,11 @@ class Best:
 
 
 class Ema:
-    """An exponential moving average of the weights (Polyak averaging): after optimizer step t,
-    avg = d avg + (1 - d) w with d = min(decay, (1 + t) / (10 + t)), so the first steps are not
-    averaged with the initial weights. The average is what is validated and saved."""
+    """An exponential moving average of the weights (Polyak averaging): after optimizer step t
+    (from 0), avg = d avg + (1 - d) w with d = min(decay, (1 + t) / (10 + t)), so the initial
+    weights fade fast (a tenth of the average after step 0). The warm-up holds d below
+    ``decay`` until step (10 decay - 1) / (1 - decay): 4,490 for 0.998, so over the default
+    3,200 steps such a decay only rises to 0.997. The average is what is validated and saved."""
 
     def __init__(self, model: Student, decay: float) -> None:
         self.decay, self.t = decay, 0
@@ -373,7 +376,8 @@ def _manifest(cfg: TrainConfig, data: StudentData, val: StudentData | None, weig
         "git_commit": git_commit(), "net": cfg.net.to_dict(),
         "epochs": cfg.epochs, "epoch_steps": cfg.epoch_steps,
         "patience": cfg.patience, "epochs_run": len(history),
-        "steps": history[-1]["step"], "batch": cfg.batch, "ema": cfg.ema, "frames": len(data), "loss_weights": asdict(weights),
+        "steps": history[-1]["step"], "batch": cfg.batch, "ema": cfg.ema, "frames": len(data),
+        "loss_weights": asdict(weights),
         "schedule": {"lr": cfg.lr, "min_lr": MIN_LR, "warmup_steps": WARMUP_STEPS, "weight_decay": WEIGHT_DECAY,
                      "aug_prob": AUG_PROB, "keep_stay": KEEP_STAY, "cut_prob": CUT_PROB},
         "final_train": history[-1]["train"], "final_val": history[-1].get("val"),

@@ -10,7 +10,8 @@ from harness.common.errors import BadInput
 from harness.common.lock import FolderLock
 from sumo_scimm.options import add_backend_options, add_vehicle_option, backend_of
 
-# = model.train.EPOCHS, EPOCH_STEPS, PATIENCE, BATCH, EMA, LR, ("none", *model.data.TEACHERS), model.loss.LossWeights()'s
+# = model.train.EPOCHS, EPOCH_STEPS, PATIENCE, BATCH, EMA, LR, ("none", *model.data.TEACHERS),
+# model.loss.LossWeights()'s
 # scimm and mode (a test checks); importing model.train here would load torch for every
 # sumo-scimm command
 EPOCHS = 8
@@ -127,7 +128,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     tr.add_argument("--lr", type=float, default=LR,
                     help=f"peak learning rate of the warm-up and cosine schedule (default {LR:g})")
     tr.add_argument("--ema", type=float, default=EMA,
-                    help=f"decay of the weight average that is validated and saved, e.g. 0.998; 0 = the raw "
+                    help=f"decay of the weight average that is validated and saved, e.g. 0.99; 0 = the raw "
                     f"weights (default {EMA:g})")
     tr.add_argument("--out", help="output folder: student.pt, manifest.json and history.json; required")
     tr.add_argument("--cache", help="BEV cache folder (default DATA/cache), shared by trainings on the same data")

@@ -396,6 +396,7 @@ def test_the_bev_encoder_on_channels_last_memory_gives_the_outputs_and_gradients
     for k, g in plain_grads.items():
         torch.testing.assert_close(fast_grads[k], g, rtol=1e-4, atol=1e-4 * g.abs().max().item() + 1e-12, msg=k)
 
+
 def test_an_epoch_draws_moving_frames_once_thins_waits_drops_stop_sign_waits_repeats_starts(tmp_path):
     from model.train import DEPART_REPEAT, KEEP_STAY, epoch_plan
     arrays = fake_dataset(tmp_path)

@@ -203,9 +203,30 @@ def test_the_weight_average_follows_its_warm_up_formula():
         expected.append(next(ema.model.parameters()).flatten()[0].item())
     assert expected == pytest.approx([0.9, 0.9 * 2 / 11 + 9 / 11, 0.25 * (0.9 * 2 / 11 + 9 / 11) + 2.25], rel=1e-6)
     assert all(not p.requires_grad for p in ema.model.parameters())
-    # the steady state: after many steps d is the decay itself
-    ema.t = 10_000
-    assert min(ema.decay, (1 + ema.t) / (10 + ema.t)) == 0.9
+    # past the warm-up (step 10,000: (1 + t) / (10 + t) > 0.9) d is the decay: weights 5
+    before, ema.t = next(ema.model.parameters()).flatten()[0].item(), 10_000
+    with torch.no_grad():
+        for p in model.parameters():
+            p.fill_(5.0)
+    ema.update(model)
+    assert next(ema.model.parameters()).flatten()[0].item() == pytest.approx(0.9 * before + 0.5, rel=1e-6)
+
+
+def test_the_optimizer_steps_at_the_peak_learning_rate_given(sets, tmp_path, monkeypatch):
+    """--lr 3e-3, 4 steps (2 epochs of 2), all inside the 200-step warm-up: 3e-3 * (t + 1) / 200
+    at step t, read from the optimizer itself after each step."""
+    import model.train as mt
+    seen, real = [], mt.train_step
+
+    def spy(model, opt, b, weights, lr):
+        terms = real(model, opt, b, weights, lr)
+        seen.append(opt.param_groups[0]["lr"])
+        return terms
+
+    monkeypatch.setattr(mt, "train_step", spy)
+    train_dir, _ = sets
+    _train(train_dir, tmp_path / "l", epochs=2, lr=0.003)
+    assert seen == pytest.approx([1.5e-5, 3e-5, 4.5e-5, 6e-5], rel=1e-12)
 
 
 def test_with_a_weight_average_the_average_is_validated_and_saved(sets, tmp_path):
@@ -265,12 +286,12 @@ def test_train_cli_control_with_weights_records_them(sets, tmp_path, capsys):
     out = tmp_path / "m"
     assert main(["train", "--data", str(train_dir), "--val", str(val_dir), "--teacher", "control",
                  "--teacher-weight", "0.25", "--mode-weight", "0", "--epochs", "1", "--out", str(out),
-                 "--cache", str(train_dir / "cache"), "--lr", "0.002"]) == 0
+                 "--cache", str(train_dir / "cache"), "--lr", "0.003"]) == 0
     m = json.loads((out / "manifest.json").read_text())
     assert m["loss_weights"] == {"origin": 1.0, "scimm": 0.25, "mode": 0.0}
-    # the peak learning rate: 2 steps into the 200-step warm-up, 2e-3 * 2 / 200
-    assert m["schedule"]["lr"] == 0.002 and m["history"][-1]["step"] == 2
-    assert m["history"][-1]["lr"] == pytest.approx(2e-5, rel=1e-12)
+    # the peak learning rate: 2 steps into the 200-step warm-up, 3e-3 * 2 / 200
+    assert m["schedule"]["lr"] == 0.003 and m["history"][-1]["step"] == 2
+    assert m["history"][-1]["lr"] == pytest.approx(3e-5, rel=1e-12)
     assert "mode" not in m["final_train"]  # a zero weight: the term is not computed
     assert (m["chosen_epoch"], m["stop_reason"]) == (1, "epochs")
     assert str(out / "student.pt") in capsys.readouterr().out

@@ -139,7 +139,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                     help="passes of the closed-loop figures and fresh processes of the IMM figure; the median "
                          "is reported, every pass beside it (default 3)")
     bn.add_argument("--eval", action="store_true", help="also time a whole town12_short evaluation")
-    bn.add_argument("--workers", type=int, default=2, help="workers of the --eval run (default 2)")
+    bn.add_argument("--workers", type=int, default=2,
+                    help="workers of the --eval, --soak, --arm and --replay runs (default 2)")
     bn.add_argument("--soak", type=int, default=0, metavar="N",
                     help="also run at least N route runs of --routes (whole passes over the set) on --workers "
                          "and report worker memory over them (docs/design.md §11: --soak 500 --routes town12_short, "
@@ -149,7 +150,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     bn.add_argument("--arm", metavar="DIR",
                     help="also time one arm and seed now (the SC-IMM student of seed 0 trained on the data of "
                          "'sumo-scimm reproduce --out DIR', then town12_short on --workers; then, not timed, it and the "
-                         "reproduce run's student of seed 0 on val; about 10 min)")
+                         "reproduce run's student of seed 0 on val; about 6 min timed and 3 min untimed)")
     bn.add_argument("--replay", metavar="DIR",
                     help="also time 'sumo-scimm replay' of the eval run DIR (its every route) with three of the "
                          "shipped students (baseline, fixed, scimm) on --workers (docs/design.md §11: an expert run of "

@@ -17,8 +17,8 @@ sumo_scimm.bench.command prints them as a table and optionally writes them as JS
   agent, and the worker memory (RSS) over it;
 - with ``--arm DIR``: one arm and seed of the experiment, run now: the SC-IMM student of
   seed 0 trained with the default recipe on the data of a ``reproduce`` output DIR, then
-  evaluated on ``town12_short`` on 2 workers (target <= 5 min), with the validation
-  L_origin of the epoch it kept.
+  evaluated on ``town12_short`` on ``--workers`` (target <= 5 min); then, untimed, its
+  validation L_origin and ``val`` DS beside those of DIR's own seed-0 SC-IMM student.
 
 The closed-loop figures and the IMM's are the median of ``--rounds`` passes (fresh
 processes for the IMM), every pass printed and written beside it.
@@ -101,13 +101,18 @@ def arm_seed_figure(folder: str, workers: int, vehicle: str = "carla", arm: str 
              "arm_seed_s": round(t_train + t_eval, 1), "arm_routes": routes, "arm_workers": workers,
              "arm_seed_target_s": ARM_SEED_TARGET_S, "arm_steps": history["history"][-1]["step"],
              "arm_batch": cfg.batch, "arm_chosen_epoch": history["chosen_epoch"],
-             "arm_val_loss": history["chosen_val"]["loss"], "arm_val_ds": val_ds(ckpt, Path(tmp) / "val")}
+             "arm_val_loss": _chosen_loss(history), "arm_val_ds": val_ds(ckpt, Path(tmp) / "val")}
         before = Path(folder) / "models" / f"{'baseline' if teacher is None else arm}_s{seed}"
         if (before / "student.pt").is_file() and (before / "history.json").is_file():
             old = json.loads((before / "history.json").read_text())
-            r.update(before=str(before), before_val_loss=old["chosen_val"]["loss"],
+            r.update(before=str(before), before_val_loss=_chosen_loss(old),
                      before_val_ds=val_ds(before / "student.pt", Path(tmp) / "val_before"))
     return r
+
+
+def _chosen_loss(history: dict) -> float:
+    """The validation L_origin of the epoch a training kept (NaN when it had none finite)."""
+    return (history.get("chosen_val") or {}).get("loss", float("nan"))
 
 
 def reproduce_figure(folder: str) -> dict:

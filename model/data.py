@@ -154,8 +154,8 @@ class StudentData:
         """Samples idx (B,) seen from view (B,), route cut at cut (B,) m ahead (0 = no cut):
         model inputs, expert labels, teacher labels.
 
-        bev (B, 9, 64, 64) float {0, 1}; target_point (B, 2), path (B, 20, 2), speed_wps
-        (B, 10, 2), origin (B, 2) [m] in the view's ego frame; speed (B,) [m/s]; with a
+        bev (B, 9, 64, 64) float {0, 1} (channels-last memory); target_point (B, 2), path
+        (B, 20, 2), speed_wps (B, 10, 2), origin (B, 2) [m] in the view's ego frame; speed (B,) [m/s]; with a
         teacher (or the control) also teacher_path (B, 20, 2) [m], teacher_speed (B, 10) [m/s], mu (B, 5).
         """
         a = self.arrays
@@ -165,7 +165,10 @@ class StudentData:
             bev[i, ROUTE, :max(0, int(np.ceil(EGO_ROW - cut[i] / RES)))] = 0  # rows more than cut m ahead
             if np.hypot(*tp[i]) > cut[i]:
                 tp[i] = a["path"][idx[i], view[i], min(int(round(cut[i])), 19)]  # path points are 1 m apart
-        out = {"bev": torch.from_numpy(bev).float(), "speed": torch.from_numpy(a["speed"][idx]),
+        # channels-last memory, the layout model.network.BevEncoder runs on; changed on the
+        # uint8 array, where it costs least
+        bev_t = torch.from_numpy(bev).contiguous(memory_format=torch.channels_last).float()
+        out = {"bev": bev_t, "speed": torch.from_numpy(a["speed"][idx]),
                "target_point": torch.from_numpy(tp)}
         for k in ("path", "speed_wps"):
             out[k] = torch.from_numpy(a[k][idx, view])

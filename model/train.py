@@ -10,8 +10,10 @@ learning-rate schedule, validation loss averaged under no_grad after every epoch
 epoch kept) -> save the chosen epoch's weights.
 
 Schedule (fixed, the same for every arm): AdamW (betas 0.9/0.95, weight decay 0.01 on
-matrices and kernels only), batch 128, learning rate linear warm-up over WARMUP_STEPS to
-LR, then cosine decay to MIN_LR at the last step; gradient norm clipped to 1.0. Samples
+matrices and kernels only), batch BATCH (``--batch``), learning rate linear warm-up over
+WARMUP_STEPS to LR, then cosine decay to MIN_LR at the last step; gradient norm clipped to
+1.0. With ``ema`` (``--ema``, off by default) an exponential moving average of the weights
+(Ema) is what is validated, kept and saved (docs/student.md: it did not help on `val`). Samples
 are drawn per epoch as the data balance below says, in a seeded random order; with
 probability AUG_PROB a frame is seen from an augmented view (model.cache), with
 probability CUT_PROB its route is cut ahead (model.data, route-end augmentation); a
@@ -60,13 +62,16 @@ step budget ran out; ``no_val``, no validation set, so the last epoch is saved;
 criterion is this: it is the one loss every arm shares (L_origin on ``val``), it needs no
 extra run per arm, and the evaluation routes never take part in it.
 
-Schedule length (EPOCHS x EPOCH_STEPS = 3,200 steps, 5-11 min per arm on a 2-core Intel Xeon
-in the seed-0 ``reproduce`` run): set by docs/design.md §11's target for ``reproduce``, five
+Schedule length (EPOCHS x EPOCH_STEPS = 3,200 steps, about 3.7 min for an SC-IMM student on
+a 2-core Intel Xeon): set by docs/design.md §11's target for ``reproduce``, five
 arms of a seed trained and evaluated in <= 75 min on 2 cores (``OUT/stages.json`` has the
 stage times). Its cost on ``val`` (software 0.2.0, seed 0, students with the speed input, one
 training each): best L_origin 1.896 (control) and 1.886 (SC-IMM) after 3,200 steps, against
 1.732 and 1.673 after 10 epochs of whole draws (7,902 steps, about 15 min); docs/student.md,
-"Training". Longer trainings: ``--epochs`` and ``--epoch-steps``.
+"Training". Longer trainings: ``--epochs`` and ``--epoch-steps``. Cheaper ones tried on
+`val` (batch 64; 2,000-2,400 steps, also at ``--lr 2e-3``) lost validation loss and `val`
+DS on average, or were not shown to be no worse (docs/student.md, "Cost of one arm and
+seed").
 
 Determinism: torch.manual_seed(seed), deterministic algorithms, a fixed thread count, and
 one numpy generator (seed) for sample order and views, drawn for every epoch up front (an
@@ -75,6 +80,7 @@ weights, and the same chosen epoch.
 """
 from __future__ import annotations
 
+import copy
 import json
 import math
 import time
@@ -107,6 +113,7 @@ CUT_RANGE = (4.0, 30.0)  # [m] the cut distance, uniform
 EPOCHS = 8  # the cosine schedule spans them; the best on `val` is saved
 EPOCH_STEPS = 400  # optimizer steps per epoch (51,200 samples); 0 = the whole balanced draw
 PATIENCE = None  # no early stop: every arm runs the whole schedule (the docstring says why)
+EMA = 0.0  # decay of the weight average (Ema); 0 = none
 THREADS = 2  # torch threads (fixed, so results do not depend on the machine's core count)
 
 
@@ -128,6 +135,9 @@ class TrainConfig:
     cache_dir: Path | None = None  # default: <data>/cache (BEV cache, shared by trainings)
     max_steps: int | None = None  # stop early (tests, benchmarks); None = all epochs
     threads: int = THREADS
+    batch: int = BATCH  # samples per optimizer step
+    ema: float = EMA  # decay of the weight average validated and saved; 0 = the raw weights
+    lr: float = LR  # peak learning rate
     net: NetConfig = field(default_factory=NetConfig)
     weights: LossWeights = field(default_factory=LossWeights)  # eq. 10; ignored for teacher none
 
@@ -144,6 +154,12 @@ class TrainConfig:
             raise BadInput(f"--seed must be >= 0, got {self.seed}")
         if self.threads < 1:
             raise BadInput(f"threads must be >= 1, got {self.threads}")
+        if self.batch < 1:
+            raise BadInput(f"--batch must be >= 1, got {self.batch}")
+        if not 0.0 <= self.ema < 1.0:
+            raise BadInput(f"--ema must be in [0, 1), got {self.ema}")
+        if not MIN_LR < self.lr < 1.0:
+            raise BadInput(f"--lr must be in ({MIN_LR:g}, 1), got {self.lr}")
 
     @property
     def loss_weights(self) -> LossWeights:
@@ -164,14 +180,14 @@ def epoch_plan(data: StudentData, rng: np.random.Generator) -> tuple[np.ndarray,
     return order, views, cuts
 
 
-def get_lr(step: int, total: int) -> float:
-    """Learning rate at optimizer step ``step`` of ``total``."""
+def get_lr(step: int, total: int, peak: float = LR) -> float:
+    """Learning rate at optimizer step ``step`` of ``total``, peaking at ``peak``."""
     if step < WARMUP_STEPS:  # 1) linear warm-up
-        return LR * (step + 1) / WARMUP_STEPS
+        return peak * (step + 1) / WARMUP_STEPS
     if step >= total - 1:  # 2) the end of the schedule
         return MIN_LR
     ratio = (step - WARMUP_STEPS) / max(1, total - 1 - WARMUP_STEPS)  # 3) cosine decay to MIN_LR
-    return MIN_LR + 0.5 * (1.0 + math.cos(math.pi * ratio)) * (LR - MIN_LR)
+    return MIN_LR + 0.5 * (1.0 + math.cos(math.pi * ratio)) * (peak - MIN_LR)
 
 
 def forward(model: Student, b: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
@@ -231,19 +247,42 @@ class Best:
         return epoch - self.epoch
 
 
+class Ema:
+    """An exponential moving average of the weights (Polyak averaging): after optimizer step t
+    (from 0), avg = d avg + (1 - d) w with d = min(decay, (1 + t) / (10 + t)), so the initial
+    weights fade fast (a tenth of the average after step 0). The warm-up holds d below
+    ``decay`` until step (10 decay - 1) / (1 - decay): 4,490 for 0.998, so over the default
+    3,200 steps such a decay only rises to 0.997. The average is what is validated and saved."""
+
+    def __init__(self, model: Student, decay: float) -> None:
+        self.decay, self.t = decay, 0
+        self.model = copy.deepcopy(model)
+        self.model.requires_grad_(False)
+
+    @torch.no_grad()
+    def update(self, model: Student) -> None:
+        d = min(self.decay, (1 + self.t) / (10 + self.t))
+        torch._foreach_lerp_(list(self.model.parameters()), list(model.parameters()), 1.0 - d)
+        self.t += 1
+
+
 def run_epoch(model: Student, opt: torch.optim.Optimizer, data: StudentData,
-              plan: tuple[np.ndarray, np.ndarray, np.ndarray], n_steps: int,
-              weights: LossWeights, step: int, total: int, bar: tqdm) -> tuple[dict, int]:
-    """Up to ``n_steps`` optimizer steps over one epoch's plan (stopping at ``total``);
-    returns (mean train loss terms, step after the epoch)."""
+              plan: tuple[np.ndarray, np.ndarray, np.ndarray], n_steps: int, cfg: TrainConfig,
+              step: int, total: int, bar: tqdm, ema: Ema | None = None) -> tuple[dict, int]:
+    """Up to ``n_steps`` optimizer steps of ``cfg.batch`` samples over one epoch's plan
+    (stopping at ``total``), each followed by the weight average's update; returns (mean
+    train loss terms, step after the epoch)."""
     order, views, cuts = plan
+    batch, weights = cfg.batch, cfg.loss_weights
     sums: dict[str, float] = {}
     n = 0
     for i in range(n_steps):
         if step >= total:
             break
-        idx = order[i * BATCH:(i + 1) * BATCH]
-        terms = train_step(model, opt, data.batch(idx, views[idx], cuts[idx]), weights, get_lr(step, total))
+        idx = order[i * batch:(i + 1) * batch]
+        terms = train_step(model, opt, data.batch(idx, views[idx], cuts[idx]), weights, get_lr(step, total, cfg.lr))
+        if ema is not None:
+            ema.update(model)
         for k, v in terms.items():
             sums[k] = sums.get(k, 0.0) + v.item()
         step, n = step + 1, n + 1
@@ -275,13 +314,15 @@ def train(cfg: TrainConfig) -> Path:
     model.train()
     opt = make_optimizer(model)
     weights = cfg.loss_weights
+    ema = Ema(model, cfg.ema) if cfg.ema else None
+    validated = ema.model if ema else model  # the weights validated, kept and saved
     plans = [epoch_plan(data, rng) for _ in range(cfg.epochs)]
-    steps = [len(order) // BATCH for order, _, _ in plans]  # whole batches of each epoch's draw
+    steps = [len(order) // cfg.batch for order, _, _ in plans]  # whole batches of each epoch's draw
     steps = [min(n, cfg.epoch_steps) for n in steps] if cfg.epoch_steps else steps
     if min(steps) < 1:
-        raise BadInput(f"{cfg.data} has {len(data)} frames, fewer than one batch of {BATCH} per epoch")
+        raise BadInput(f"{cfg.data} has {len(data)} frames, fewer than one batch of {cfg.batch} per epoch")
     total = sum(steps) if cfg.max_steps is None else min(cfg.max_steps, sum(steps))
-    tqdm.write(f"student: {n_params(model):,} parameters; {len(data):,} frames, at most {total} steps of {BATCH}, "
+    tqdm.write(f"student: {n_params(model):,} parameters; {len(data):,} frames, at most {total} steps of {cfg.batch}, "
                f"teacher {cfg.teacher}, seed {cfg.seed}")
     # loop: one epoch, its validation loss, the best epoch kept (an early stop with patience)
     step, history, best, stop = 0, [], Best(), "epochs"
@@ -289,14 +330,14 @@ def train(cfg: TrainConfig) -> Path:
     for epoch, plan in enumerate(plans, start=1):
         te = time.perf_counter()
         bar.set_description(f"train ({cfg.teacher}) epoch {epoch}/{cfg.epochs}")
-        means, step = run_epoch(model, opt, data, plan, steps[epoch - 1], weights, step, total, bar)
-        record = {"epoch": epoch, "step": step, "lr": get_lr(step - 1, total), "train": means,
+        means, step = run_epoch(model, opt, data, plan, steps[epoch - 1], cfg, step, total, bar, ema)
+        record = {"epoch": epoch, "step": step, "lr": get_lr(step - 1, total, cfg.lr), "train": means,
                   "seconds": round(time.perf_counter() - te, 3)}
         if val is not None:
             tv = time.perf_counter()
-            record["val"] = estimate_loss(model, val)
+            record["val"] = estimate_loss(validated, val)
             record["val_seconds"] = round(time.perf_counter() - tv, 3)
-            best.update(model, record)
+            best.update(validated, record)
         history.append(record)
         tqdm.write(_epoch_line(record))
         if val is not None and cfg.patience is not None and best.waited(epoch) >= cfg.patience:
@@ -309,6 +350,7 @@ def train(cfg: TrainConfig) -> Path:
     # the chosen epoch: the best on val (its weights back in the model), else the last
     if val is None or best.state is None:  # no validation set, or no finite validation loss (diverged)
         stop, chosen = "no_val" if val is None else "no_finite_val", history[-1]
+        model.load_state_dict(validated.state_dict())
     else:
         model.load_state_dict(best.state)
         chosen = history[best.epoch - 1]
@@ -334,13 +376,14 @@ def _manifest(cfg: TrainConfig, data: StudentData, val: StudentData | None, weig
         "git_commit": git_commit(), "net": cfg.net.to_dict(),
         "epochs": cfg.epochs, "epoch_steps": cfg.epoch_steps,
         "patience": cfg.patience, "epochs_run": len(history),
-        "steps": history[-1]["step"], "batch": BATCH, "frames": len(data), "loss_weights": asdict(weights),
-        "schedule": {"lr": LR, "min_lr": MIN_LR, "warmup_steps": WARMUP_STEPS, "weight_decay": WEIGHT_DECAY,
+        "steps": history[-1]["step"], "batch": cfg.batch, "ema": cfg.ema, "frames": len(data),
+        "loss_weights": asdict(weights),
+        "schedule": {"lr": cfg.lr, "min_lr": MIN_LR, "warmup_steps": WARMUP_STEPS, "weight_decay": WEIGHT_DECAY,
                      "aug_prob": AUG_PROB, "keep_stay": KEEP_STAY, "cut_prob": CUT_PROB},
         "final_train": history[-1]["train"], "final_val": history[-1].get("val"),
         "chosen_epoch": chosen["epoch"], "chosen_val": chosen.get("val"), "stop_reason": stop,
         "history": history, "threads": cfg.threads,
-        "train_samples_per_s": history[-1]["step"] * BATCH / max(train_s, 1e-9), "wall_s": wall_s,
+        "train_samples_per_s": history[-1]["step"] * cfg.batch / max(train_s, 1e-9), "wall_s": wall_s,
     }
 
 

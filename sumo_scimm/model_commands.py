@@ -10,12 +10,16 @@ from harness.common.errors import BadInput
 from harness.common.lock import FolderLock
 from sumo_scimm.options import add_backend_options, add_vehicle_option, backend_of
 
-# = model.train.EPOCHS, EPOCH_STEPS, PATIENCE, ("none", *model.data.TEACHERS), model.loss.LossWeights()'s
+# = model.train.EPOCHS, EPOCH_STEPS, PATIENCE, BATCH, EMA, LR, ("none", *model.data.TEACHERS),
+# model.loss.LossWeights()'s
 # scimm and mode (a test checks); importing model.train here would load torch for every
 # sumo-scimm command
 EPOCHS = 8
 EPOCH_STEPS = 400
 PATIENCE = None
+BATCH = 128
+EMA = 0.0
+LR = 1e-3
 TEACHERS = ("none", "control", "fixed", "scimm", "smoother")
 TEACHER_WEIGHT, MODE_WEIGHT = 1.0, 0.1
 EVAL_SET = "town12_short"  # = model.reproduce.EVAL_SET
@@ -46,7 +50,7 @@ def _train(args: argparse.Namespace) -> int:
                           mode=MODE_WEIGHT if args.mode_weight is None else args.mode_weight)
     cfg = TrainConfig(data=Path(args.data), out=Path(args.out), teacher=args.teacher,
                       val=Path(args.val) if args.val else None, seed=args.seed, epochs=args.epochs,
-                      epoch_steps=args.epoch_steps, patience=args.patience,
+                      epoch_steps=args.epoch_steps, patience=args.patience, batch=args.batch, ema=args.ema, lr=args.lr,
                       cache_dir=Path(args.cache) if args.cache else None, weights=weights)
     with FolderLock(cfg.out):  # one command per output folder (harness.common.lock)
         print(f"model checkpoint: {train(cfg)}")
@@ -109,7 +113,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                     help=f"epochs; the learning-rate schedule spans them, the best on --val is saved "
                     f"(default {EPOCHS})")
     tr.add_argument("--epoch-steps", type=int, default=EPOCH_STEPS,
-                    help=f"optimizer steps of 128 samples per epoch; 0 = a whole pass of the balanced draw "
+                    help=f"optimizer steps (of --batch samples) per epoch; 0 = a whole pass of the balanced draw "
                     f"(default {EPOCH_STEPS})")
     tr.add_argument("--patience", type=int, default=PATIENCE,
                     help="with --val: stop after P epochs without a new best validation loss (default: never, "
@@ -120,6 +124,12 @@ def register(sub: argparse._SubParsersAction) -> None:
     tr.add_argument("--mode-weight", type=_weight, metavar="M",
                     help=f"lambda_mode of eq. 10, the mode term's weight (default {MODE_WEIGHT}; "
                     "not with --teacher none)")
+    tr.add_argument("--batch", type=int, default=BATCH, help=f"samples per optimizer step (default {BATCH})")
+    tr.add_argument("--lr", type=float, default=LR,
+                    help=f"peak learning rate of the warm-up and cosine schedule (default {LR:g})")
+    tr.add_argument("--ema", type=float, default=EMA,
+                    help=f"decay of the weight average that is validated and saved, e.g. 0.99; 0 = the raw "
+                    f"weights (default {EMA:g})")
     tr.add_argument("--out", help="output folder: student.pt, manifest.json and history.json; required")
     tr.add_argument("--cache", help="BEV cache folder (default DATA/cache), shared by trainings on the same data")
     tr.set_defaults(func=_train)

@@ -251,7 +251,11 @@ def test_bench_checks_its_agent_config_and_json_folder_before_running(tmp_path):
     _one_line_exit_2(code, printed, "--json")
     code, printed = _cli(["bench", "--rounds", "0"])
     _one_line_exit_2(code, printed, "--rounds")
-    assert not list(tmp_path.iterdir())
+    (tmp_path / "rep" / "data" / "train").mkdir(parents=True)  # no data/val: not a reproduce output
+    code, printed = _cli(["bench", "--arm", str(tmp_path / "rep")])
+    _one_line_exit_2(code, printed, "--arm", "no data/train and data/val")
+    assert [p.name for p in tmp_path.iterdir()] == ["rep"]
+    assert [p.name for p in (tmp_path / "rep").iterdir()] == ["data"]
 
 
 def test_report_refuses_an_unfinished_run_and_a_damaged_records_csv(one_route_run, tmp_path):

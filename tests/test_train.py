@@ -182,11 +182,76 @@ def test_early_stopping_is_deterministic_for_a_seed(sets, tmp_path):
     assert [r["val"] for r in ma["history"]] == [r["val"] for r in mb["history"]]
 
 
+# --- weight average -----------------------------------------------------------------------------
+def test_the_weight_average_follows_its_warm_up_formula():
+    """decay 0.9, weights 0 at the start, then 1, 1, 3 after steps 0, 1, 2: d = min(0.9,
+    (1 + t) / (10 + t)) = 0.1, 2/11, 0.25; the average 0.9, then 2/11 * 0.9 + 9/11 = 0.98182,
+    then 0.25 * 0.98182 + 0.75 * 3 = 2.49545."""
+    from model.network import NetConfig, Student
+    from model.train import Ema
+    model = Student(NetConfig())
+    with torch.no_grad():
+        for p in model.parameters():
+            p.zero_()
+    ema = Ema(model, 0.9)
+    expected = []
+    for w in (1.0, 1.0, 3.0):
+        with torch.no_grad():
+            for p in model.parameters():
+                p.fill_(w)
+        ema.update(model)
+        expected.append(next(ema.model.parameters()).flatten()[0].item())
+    assert expected == pytest.approx([0.9, 0.9 * 2 / 11 + 9 / 11, 0.25 * (0.9 * 2 / 11 + 9 / 11) + 2.25], rel=1e-6)
+    assert all(not p.requires_grad for p in ema.model.parameters())
+    # past the warm-up (step 10,000: (1 + t) / (10 + t) > 0.9) d is the decay: weights 5
+    before, ema.t = next(ema.model.parameters()).flatten()[0].item(), 10_000
+    with torch.no_grad():
+        for p in model.parameters():
+            p.fill_(5.0)
+    ema.update(model)
+    assert next(ema.model.parameters()).flatten()[0].item() == pytest.approx(0.9 * before + 0.5, rel=1e-6)
+
+
+def test_the_optimizer_steps_at_the_peak_learning_rate_given(sets, tmp_path, monkeypatch):
+    """--lr 3e-3, 4 steps (2 epochs of 2), all inside the 200-step warm-up: 3e-3 * (t + 1) / 200
+    at step t, read from the optimizer itself after each step."""
+    import model.train as mt
+    seen, real = [], mt.train_step
+
+    def spy(model, opt, b, weights, lr):
+        terms = real(model, opt, b, weights, lr)
+        seen.append(opt.param_groups[0]["lr"])
+        return terms
+
+    monkeypatch.setattr(mt, "train_step", spy)
+    train_dir, _ = sets
+    _train(train_dir, tmp_path / "l", epochs=2, lr=0.003)
+    assert seen == pytest.approx([1.5e-5, 3e-5, 4.5e-5, 6e-5], rel=1e-12)
+
+
+def test_with_a_weight_average_the_average_is_validated_and_saved(sets, tmp_path):
+    """The saved weights give the chosen epoch's validation loss again, and they are not the
+    raw weights a training without the average saves (same seed, same draws)."""
+    from model.train import estimate_loss
+    train_dir, val_dir = sets
+    kw = dict(val=val_dir, teacher="scimm", epochs=2, seed=3, batch=64)
+    avg, m = load_checkpoint(_train(train_dir, tmp_path / "e", ema=0.9, **kw))
+    raw, m_raw = load_checkpoint(_train(train_dir, tmp_path / "r", **kw))
+    assert (m["ema"], m["batch"], m_raw["ema"]) == (0.9, 64, 0.0)
+    assert [r["step"] for r in m["history"]] == [r["step"] for r in m_raw["history"]]
+    torch.set_num_threads(1)
+    again = estimate_loss(avg, StudentData.load(val_dir, train_dir / "cache", 1))
+    assert again["loss"] == pytest.approx(m["chosen_val"]["loss"], rel=1e-6)  # float32 summation order
+    assert m["chosen_val"] != m_raw["chosen_val"]
+    assert not all(torch.equal(a, b) for a, b in zip(avg.state_dict().values(), raw.state_dict().values()))
+
+
 # --- command line -------------------------------------------------------------------------------
 def test_the_cli_defaults_are_the_trainings():
-    from model.train import EPOCH_STEPS, EPOCHS, PATIENCE
+    from model.train import BATCH, EMA, EPOCH_STEPS, EPOCHS, LR, PATIENCE
     from sumo_scimm import model_commands as mc
-    assert (mc.EPOCHS, mc.EPOCH_STEPS, mc.PATIENCE) == (EPOCHS, EPOCH_STEPS, PATIENCE)
+    assert (mc.EPOCHS, mc.EPOCH_STEPS, mc.PATIENCE, mc.BATCH, mc.EMA, mc.LR) == (EPOCHS, EPOCH_STEPS, PATIENCE, BATCH,
+                                                                                 EMA, LR)
     assert mc.TEACHERS == ("none", *TEACHERS)
     assert (mc.TEACHER_WEIGHT, mc.MODE_WEIGHT) == (LossWeights().scimm, LossWeights().mode)
 
@@ -200,6 +265,11 @@ def test_the_cli_defaults_are_the_trainings():
     (["--mode-weight", "0.5"], "--mode-weight: the baseline (--teacher none) has no teacher terms"),
     (["--patience", "0"], "--patience must be >= 1"),
     (["--epoch-steps", "-1"], "--epoch-steps must be >= 0"),
+    (["--batch", "0"], "--batch must be >= 1"),
+    (["--ema", "1"], "--ema must be in [0, 1)"),
+    (["--ema", "-0.5"], "--ema must be in [0, 1)"),
+    (["--lr", "0"], "--lr must be in (2e-05, 1)"),
+    (["--lr", "nan"], "--lr must be in (2e-05, 1)"),
 ])
 def test_bad_weights_and_patience_are_one_line_and_write_nothing(tmp_path, capsys, args, message):
     fake_dataset(tmp_path / "data")
@@ -216,9 +286,12 @@ def test_train_cli_control_with_weights_records_them(sets, tmp_path, capsys):
     out = tmp_path / "m"
     assert main(["train", "--data", str(train_dir), "--val", str(val_dir), "--teacher", "control",
                  "--teacher-weight", "0.25", "--mode-weight", "0", "--epochs", "1", "--out", str(out),
-                 "--cache", str(train_dir / "cache")]) == 0
+                 "--cache", str(train_dir / "cache"), "--lr", "0.003"]) == 0
     m = json.loads((out / "manifest.json").read_text())
     assert m["loss_weights"] == {"origin": 1.0, "scimm": 0.25, "mode": 0.0}
+    # the peak learning rate: 2 steps into the 200-step warm-up, 3e-3 * 2 / 200
+    assert m["schedule"]["lr"] == 0.003 and m["history"][-1]["step"] == 2
+    assert m["history"][-1]["lr"] == pytest.approx(3e-5, rel=1e-12)
     assert "mode" not in m["final_train"]  # a zero weight: the term is not computed
     assert (m["chosen_epoch"], m["stop_reason"]) == (1, "epochs")
     assert str(out / "student.pt") in capsys.readouterr().out

@@ -10,7 +10,8 @@ from pathlib import Path
 from files.atomic import write_atomic
 from harness.common.errors import BadInput
 from harness.loop.agent import DEFAULT_AGENT, check_agent
-from sumo_scimm.bench.figures import EVAL_TARGET_S, OVERHEAD_TARGET, REPRODUCE_TARGET_S, RSS_TARGET_MB
+from sumo_scimm.bench.figures import (ARM_SEED_TARGET_S, EVAL_TARGET_S, OVERHEAD_TARGET, REPRODUCE_TARGET_S,
+                                      RSS_TARGET_MB)
 from sumo_scimm.options import add_vehicle_option
 
 
@@ -54,7 +55,8 @@ def _print_memory(label: str, e: dict) -> None:
 def _bench(args: argparse.Namespace) -> int:
     from sumo_scimm.bench.closed_loop import BenchError, collect_rate, run_bench
     from sumo_scimm.bench.student import format_student_bench, run_student_bench
-    from sumo_scimm.bench.figures import bare_inference, eval_figures, machine, reproduce_figure
+    from sumo_scimm.bench.figures import (arm_seed_figure, bare_inference, check_arm_folder, eval_figures, machine,
+                                          reproduce_figure)
     from sumo_scimm.bench.imm import format_imm_bench, run_imm_bench
     if args.routes_count < 1 or args.workers < 1 or args.rounds < 1:
         raise BadInput("--routes-count, --workers and --rounds must be >= 1")
@@ -64,6 +66,8 @@ def _bench(args: argparse.Namespace) -> int:
     if args.soak < 0:
         raise BadInput(f"--soak {args.soak}: must be >= 0 route runs")
     reproduce = reproduce_figure(args.reproduce) if args.reproduce else None
+    if args.arm:
+        check_arm_folder(args.arm)
     if args.replay:  # checked before anything runs
         from harness.runs.replay import REPLAY_AGENTS, plan_replay
         plan_replay(Path(args.replay), list(REPLAY_AGENTS), None)
@@ -100,6 +104,18 @@ def _bench(args: argparse.Namespace) -> int:
         print(f"reproduce              {reproduce['reproduce_wall_s'] / 60:8.1f} min, {reproduce['stages']} stages, "
               f"from {reproduce['reproduce_dir']}/stages.json as measured when it ran "
               f"(target <= {REPRODUCE_TARGET_S / 60:g} min)")
+        for name, t in reproduce["reproduce_arm_seed_s"].items():
+            print(f"  arm and seed {name:12s} {t / 60:5.1f} min, training plus town12_short evaluation "
+                  f"(target <= {ARM_SEED_TARGET_S / 60:g} min)")
+    if args.arm:
+        r["arm_seed"] = a = arm_seed_figure(args.arm, args.workers, args.vehicle)
+        print(f"arm and seed, now       {a['arm_seed_s'] / 60:8.1f} min: {a['arm']} seed {a['seed']} trained "
+              f"{a['arm_train_s']:.0f} s ({a['arm_steps']} steps, validation L_origin {a['arm_val_loss']:.3f} at epoch "
+              f"{a['arm_chosen_epoch']}) + {a['arm_routes']} on {a['arm_workers']} workers {a['arm_eval_s']:.0f} s "
+              f"(target <= {ARM_SEED_TARGET_S / 60:g} min)")
+        print(f"  this recipe on val      L_origin {a['arm_val_loss']:.3f}, DS {a['arm_val_ds']:.2f} (one student)")
+        if "before" in a:
+            print(f"  {a['before']} on val  L_origin {a['before_val_loss']:.3f}, DS {a['before_val_ds']:.2f}")
     if args.replay:
         from harness.runs.replay import replay_figure
         r["replay"] = p = replay_figure(Path(args.replay), args.workers)
@@ -123,13 +139,18 @@ def register(sub: argparse._SubParsersAction) -> None:
                     help="passes of the closed-loop figures and fresh processes of the IMM figure; the median "
                          "is reported, every pass beside it (default 3)")
     bn.add_argument("--eval", action="store_true", help="also time a whole town12_short evaluation")
-    bn.add_argument("--workers", type=int, default=2, help="workers of the --eval run (default 2)")
+    bn.add_argument("--workers", type=int, default=2,
+                    help="workers of the --eval, --soak, --arm and --replay runs (default 2)")
     bn.add_argument("--soak", type=int, default=0, metavar="N",
                     help="also run at least N route runs of --routes (whole passes over the set) on --workers "
                          "and report worker memory over them (docs/design.md §11: --soak 500 --routes town12_short, "
                          "about 4 min per 100 routes with the student)")
     bn.add_argument("--reproduce", metavar="DIR",
                     help="also print the wall time a finished 'sumo-scimm reproduce --out DIR' recorded")
+    bn.add_argument("--arm", metavar="DIR",
+                    help="also time one arm and seed now (the SC-IMM student of seed 0 trained on the data of "
+                         "'sumo-scimm reproduce --out DIR', then town12_short on --workers; then, not timed, it and the "
+                         "reproduce run's student of seed 0 on val; about 6 min timed and 3 min untimed)")
     bn.add_argument("--replay", metavar="DIR",
                     help="also time 'sumo-scimm replay' of the eval run DIR (its every route) with three of the "
                          "shipped students (baseline, fixed, scimm) on --workers (docs/design.md §11: an expert run of "

@@ -14,7 +14,11 @@ sumo_scimm.bench.command prints them as a table and optionally writes them as JS
 - collect (``closed_loop.collect_rate``): simulated seconds per wall second of one worker
   recording the expert as ``sumo-scimm collect`` does;
 - with ``--eval``: wall time of a whole ``town12_short`` evaluation on 2 workers with the
-  agent, and the worker memory (RSS) over it.
+  agent, and the worker memory (RSS) over it;
+- with ``--arm DIR``: one arm and seed of the experiment, run now: the SC-IMM student of
+  seed 0 trained with the default recipe on the data of a ``reproduce`` output DIR, then
+  evaluated on ``town12_short`` on ``--workers`` (target <= 5 min); then, untimed, its
+  validation L_origin and ``val`` DS beside those of DIR's own seed-0 SC-IMM student.
 
 The closed-loop figures and the IMM's are the median of ``--rounds`` passes (fresh
 processes for the IMM), every pass printed and written beside it.
@@ -32,6 +36,7 @@ import time
 from pathlib import Path
 
 EVAL_TARGET_S, OVERHEAD_TARGET, RSS_TARGET_MB, REPRODUCE_TARGET_S = 180.0, 2.0, 800.0, 3600.0
+ARM_SEED_TARGET_S = 300.0  # one arm and seed: training plus the town12_short evaluation [s]
 
 
 def eval_figures(agent: str, agent_config: str | None, workers: int, routes: str = "town12_short",
@@ -49,6 +54,67 @@ def eval_figures(agent: str, agent_config: str | None, workers: int, routes: str
                 "route_runs": len(res.records), "vehicle": vehicle}
 
 
+def check_arm_folder(folder: str) -> Path:
+    """FOLDER/data of a ``reproduce`` output, if it holds the training and validation sets."""
+    from harness.common.errors import BadInput
+    data = Path(folder) / "data"
+    if not (data / "train").is_dir() or not (data / "val").is_dir():
+        raise BadInput(f"--arm {folder}: no data/train and data/val in it; give the --out folder of a "
+                       f"'sumo-scimm reproduce' run")
+    return data
+
+
+def arm_seed_figure(folder: str, workers: int, vehicle: str = "carla", arm: str = "scimm", seed: int = 0,
+                    routes: str = "town12_short", val_routes: str = "val") -> dict:
+    """Wall time of one arm and seed as ``reproduce`` runs it, now: ``arm``'s student of
+    ``seed`` trained with the default recipe on FOLDER/data/train (validation FOLDER/data/val,
+    BEV cache FOLDER/data/cache, built first if missing and not timed), then evaluated on
+    ``routes`` on ``workers`` workers; both in a temporary folder.
+
+    Then, not timed, the recipe's quality beside the student FOLDER/models/<arm>_s<seed> that
+    the ``reproduce`` run trained (if present): the validation L_origin of each (from their
+    histories) and the driving score of each on ``val_routes``."""
+    from harness.runs.evaluate import Backend, evaluate
+    from model.data import StudentData
+    from model.train import VIEWS, TrainConfig, train
+    data = check_arm_folder(folder)
+    teacher = None if arm in ("none", "baseline") else arm
+    StudentData.load(data / "train", data / "cache", VIEWS, teacher)  # the shared BEV cache, as reproduce has it
+    StudentData.load(data / "val", data / "cache", 1)
+
+    def val_ds(ckpt: Path, out: Path) -> float:
+        res = evaluate(val_routes, "student", str(ckpt), out, seed=seed, backend=Backend(workers), vehicle=vehicle)
+        return res.global_record["scores_mean"]["score_composed"]
+
+    with tempfile.TemporaryDirectory(prefix="sumo-scimm-bench-") as tmp:
+        cfg = TrainConfig(data=data / "train", out=Path(tmp) / "model", teacher=teacher or "none",
+                          val=data / "val", seed=seed, cache_dir=data / "cache")
+        t0 = time.perf_counter()
+        ckpt = train(cfg)
+        t_train = time.perf_counter() - t0
+        history = json.loads((Path(tmp) / "model" / "history.json").read_text())
+        t0 = time.perf_counter()
+        evaluate(routes, "student", str(ckpt), Path(tmp) / "run", seed=seed, backend=Backend(workers),
+                 vehicle=vehicle)
+        t_eval = time.perf_counter() - t0
+        r = {"arm": arm, "seed": seed, "arm_train_s": round(t_train, 1), "arm_eval_s": round(t_eval, 1),
+             "arm_seed_s": round(t_train + t_eval, 1), "arm_routes": routes, "arm_workers": workers,
+             "arm_seed_target_s": ARM_SEED_TARGET_S, "arm_steps": history["history"][-1]["step"],
+             "arm_batch": cfg.batch, "arm_chosen_epoch": history["chosen_epoch"],
+             "arm_val_loss": _chosen_loss(history), "arm_val_ds": val_ds(ckpt, Path(tmp) / "val")}
+        before = Path(folder) / "models" / f"{'baseline' if teacher is None else arm}_s{seed}"
+        if (before / "student.pt").is_file() and (before / "history.json").is_file():
+            old = json.loads((before / "history.json").read_text())
+            r.update(before=str(before), before_val_loss=_chosen_loss(old),
+                     before_val_ds=val_ds(before / "student.pt", Path(tmp) / "val_before"))
+    return r
+
+
+def _chosen_loss(history: dict) -> float:
+    """The validation L_origin of the epoch a training kept (NaN when it had none finite)."""
+    return (history.get("chosen_val") or {}).get("loss", float("nan"))
+
+
 def reproduce_figure(folder: str) -> dict:
     """The stage wall times a finished ``sumo-scimm reproduce`` recorded in FOLDER/stages.json
     (measured when it ran, not now: reproduce takes about an hour)."""
@@ -59,8 +125,11 @@ def reproduce_figure(folder: str) -> dict:
         total = float(sum(times.values()))
     except (OSError, ValueError, TypeError, AttributeError) as exc:
         raise BadInput(f"--reproduce {folder}: no readable stages.json of 'sumo-scimm reproduce' ({exc})") from None
+    arm_seeds = {name[len("train "):]: t + times.get("eval " + name[len("train "):], 0.0)
+                 for name, t in times.items() if name.startswith("train ")}  # "scimm s0" -> train + eval [s]
     return {"reproduce_dir": str(folder), "reproduce_wall_s": round(total, 1), "stages": len(times),
-            "reproduce_target_s": REPRODUCE_TARGET_S}
+            "reproduce_target_s": REPRODUCE_TARGET_S,
+            "reproduce_arm_seed_s": {k: round(v, 1) for k, v in arm_seeds.items()}}
 
 
 def machine() -> dict:

@@ -75,12 +75,12 @@ def arm_seed_figure(folder: str, workers: int, vehicle: str = "carla", arm: str 
     the ``reproduce`` run trained (if present): the validation L_origin of each (from their
     histories) and the driving score of each on ``val_routes``."""
     from harness.runs.evaluate import Backend, evaluate
-    from model.data import StudentData
+    from model.cache import build_cache
     from model.train import VIEWS, TrainConfig, train
     data = check_arm_folder(folder)
     teacher = None if arm in ("none", "baseline") else arm
-    StudentData.load(data / "train", data / "cache", VIEWS, teacher)  # the shared BEV cache, as reproduce has it
-    StudentData.load(data / "val", data / "cache", 1)
+    build_cache(data / "train", data / "cache", VIEWS, workers)  # the shared BEV cache, as reproduce has it
+    build_cache(data / "val", data / "cache", 1, workers)
 
     def val_ds(ckpt: Path, out: Path) -> float:
         res = evaluate(val_routes, "student", str(ckpt), out, seed=seed, backend=Backend(workers), vehicle=vehicle)

@@ -10,12 +10,13 @@
   (``verdict``), with the paper's size beside ours (``size_agreement``);
 - the DS of each hazard type, the arms side by side (``hazard_ds``);
 - the arms ranked by mean DS on each evaluation set, the sets side by side (``ranking``);
-- the stage wall times, one row per stage and per arm and seed (``stage_table``).
+- the stage wall times, one row per stage and per arm and seed (``stage_table``, ``train_seconds``).
 """
 from __future__ import annotations
 
 import csv
 import math
+import re
 from pathlib import Path
 
 from harness.scoring import stability
@@ -192,10 +193,10 @@ def ranking(ds: dict[str, dict[str, float]]) -> str:
 
 
 def stage_table(times: dict[str, float], arms: list[str], seeds: list[int], main: str, second: str | None) -> str:
-    """Stage wall times [s] as Markdown: the shared stages (collect, teachers, tables,
-    figures) one a row, then one row per arm and seed with its training and its evaluation
-    on the main set (``main``) and the second (``second``, None: none), then the total of
-    every stage in ``times``."""
+    """Stage wall times [s] as Markdown: the shared stages (collect, teachers, trainings side
+    by side, tables, figures) one a row, then one row per arm and seed with its training
+    (``train_seconds``) and its evaluation on the main set (``main``) and the second
+    (``second``, None: none), then the total of every stage in ``times``."""
     sets = [(main, None)] + ([(second, second)] if second else [])
     per_arm = {f"train {a} s{k}" for a in arms for k in seeds}
     per_arm |= {eval_stage(a, k, on) for a in arms for k in seeds for _, on in sets}
@@ -207,11 +208,33 @@ def stage_table(times: dict[str, float], arms: list[str], seeds: list[int], main
     for a in arms:
         for k in seeds:
             evals = [cell(eval_stage(a, k, on)) for _, on in sets]
-            lines.append(f"| {a} | {k} | {cell(f'train {a} s{k}')} | " + " | ".join(evals) + " |")
+            t = train_seconds(times, a, k)
+            lines.append(f"| {a} | {k} | {'-' if t is None else f'{t:.0f}'} | " + " | ".join(evals) + " |")
     total = sum(times.values())
     lines += ["", f"Total: {total:.0f} s ({total / 60:.1f} min), every stage of stages.json (a stage "
-              "found finished keeps the time it took when it ran)."]
+              "found finished keeps the time it took when it ran; a training side by side is "
+              "its stage's time over the students the stage trained)."]
     return "\n".join(lines)
+
+
+def train_stage(n: int, seeds: range) -> str:
+    """The stage name of ``n`` students of seeds ``seeds`` trained side by side."""
+    return f"train {n} students s{seeds[0]}-{seeds[-1]}"
+
+
+_SIDE_BY_SIDE = re.compile(r"train (\d+) students s(\d+)-(\d+)")
+
+
+def train_seconds(times: dict[str, float], arm: str, seed: int) -> float | None:
+    """Wall time [s] of arm ``arm``'s seed-``seed`` training in a stages.json: its own stage
+    (``train <arm> s<seed>``, one training at a time), else its share of the latest stage
+    that trained the students of its seed side by side (the stage's time over its
+    students); None if neither is there."""
+    if f"train {arm} s{seed}" in times:
+        return times[f"train {arm} s{seed}"]
+    shares = [t / int(m[1]) for name, t in times.items()
+              if (m := _SIDE_BY_SIDE.fullmatch(name)) and int(m[2]) <= seed <= int(m[3]) and int(m[1]) > 0]
+    return shares[-1] if shares else None
 
 
 def eval_stage(arm: str, seed: int, on: str | None = None) -> str:

@@ -1,7 +1,8 @@
 """``sumo-scimm reproduce``: the paper's whole experiment on a CPU, one stage after another.
 
-    collect train + val (expert) -> teachers (fixed, scimm, smoother) -> for each seed: train
-    the baseline / control / fixed / scimm / smoother students -> evaluate each on
+    collect train + val (expert) -> teachers (fixed, scimm, smoother) -> the baseline /
+    control / fixed / scimm / smoother students of every seed asked, trained two at a time
+    side by side (model.side_by_side) -> for each seed: evaluate each student on
     town12_short and on the second set town12_second -> every seed's students fed the
     expert's inputs on town12_short (replay) -> Table 2, Tables 3-4 with route-paired
     intervals against the baseline and against the loss-matched control, the paper's claims,
@@ -11,7 +12,10 @@
 Every stage is the function behind the subcommand a user would run by hand (its command
 line is printed), and each skips work whose outputs exist (collect and eval resume; a
 teacher with a manifest, a training with a checkpoint are not redone), so an interrupted
-reproduce resumes where it stopped. Stage wall times go to ``OUT/stages.json``; the tables
+reproduce resumes where it stopped. The trainings side by side are one stage (one torch
+thread each, printed as ``sumo-scimm train ... --threads 1`` commands, each of which gives
+the same student alone); a long run in parts (``--seeds 0-1``, ``--seeds 2-3``, ...) shows
+tables after each part. Stage wall times go to ``OUT/stages.json``; the tables
 to ``OUT/tables`` (the second set's to ``OUT/tables/<set>``, model.arm_tables), figures and
 a summary to ``OUT/README.md``.
 """
@@ -144,9 +148,10 @@ def reproduce(out: Path, seeds: int | range, repetitions: int, epochs: int | Non
             st.run(f"teacher {method}", f"teacher --data {train_dir} --method {method}",
                    lambda method=method: make_teachers(train_dir, episodes, (method,)))
     label2 = None if second is None else Path(second).stem
+    ckpts = _train(st, out, arms, teacher, seeds, epochs, train_dir, val_dir)
     for seed in seeds:
         for arm in arms:
-            ckpt = _train(st, out, arm, teacher[arm], seed, epochs, train_dir, val_dir)
+            ckpt = ckpts[arm, seed]
             _eval(st, ckpt, sets[2], out / "runs" / f"{arm}_s{seed}", arm, seed, None, backend, vehicle)
             if second is not None:
                 _eval(st, ckpt, second, out / "runs" / label2 / f"{arm}_s{seed}", arm, seed, label2, backend, vehicle)
@@ -172,18 +177,27 @@ def _collect(st: Stages, sets: tuple[str, str, str], train_dir: Path, val_dir: P
            lambda: collect(val_set, val_dir, resume=True, backend=backend, vehicle=vehicle))
 
 
-def _train(st: Stages, out: Path, arm: str, teacher: str, seed: int, epochs: int | None,
-           train_dir: Path, val_dir: Path) -> Path:
-    """The checkpoint of ``arm``'s seed-``seed`` student, trained unless it exists."""
-    from model.train import TrainConfig, train
-    model_dir = out / "models" / f"{arm}_s{seed}"
-    ckpt = model_dir / "student.pt"
-    if not ckpt.is_file():
-        cfg = TrainConfig(data=train_dir, out=model_dir, teacher=teacher, val=val_dir, seed=seed,
-                          cache_dir=out / "data" / "cache", **({"epochs": epochs} if epochs else {}))
-        st.run(f"train {arm} s{seed}", f"train --data {train_dir} --val {val_dir} --teacher {teacher} "
-               f"--seed {seed} --out {model_dir} --epochs {cfg.epochs}", lambda: train(cfg))
-    return ckpt
+def _train(st: Stages, out: Path, arms: tuple[str, ...], teacher: dict[str, str], seeds: range,
+           epochs: int | None, train_dir: Path, val_dir: Path) -> dict[tuple[str, int], Path]:
+    """The checkpoint of every arm's student of every seed, {(arm, seed): file}; those not
+    yet trained are trained side by side (model.side_by_side: SIDE_BY_SIDE at a time, one
+    torch thread each) as stage ``train N students sA-B``."""
+    from model.arm_tables import train_stage
+    from model.side_by_side import SIDE_BY_SIDE, THREADS_EACH, train_side_by_side
+    from model.train import TrainConfig
+    ckpts = {(arm, seed): out / "models" / f"{arm}_s{seed}" / "student.pt" for seed in seeds for arm in arms}
+    todo = {key: TrainConfig(data=train_dir, out=ckpt.parent, teacher=teacher[key[0]], val=val_dir, seed=key[1],
+                             cache_dir=out / "data" / "cache", threads=THREADS_EACH,
+                             **({"epochs": epochs} if epochs else {}))
+            for key, ckpt in ckpts.items() if not ckpt.is_file()}
+    for cfg in todo.values():
+        log.info("   sumo-scimm train --data %s --val %s --teacher %s --seed %d --out %s --epochs %d --threads %d",
+                 train_dir, val_dir, cfg.teacher, cfg.seed, cfg.out, cfg.epochs, cfg.threads)
+    if todo:
+        st.run(train_stage(len(todo), seeds),
+               f"train, the {len(todo)} commands above, {SIDE_BY_SIDE} at a time",
+               lambda: train_side_by_side(list(todo.values())))
+    return ckpts
 
 
 def _eval(st: Stages, ckpt: Path, route_set: str, run_dir: Path, arm: str, seed: int, on: str | None,

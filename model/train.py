@@ -84,6 +84,7 @@ import copy
 import json
 import math
 import time
+from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
@@ -153,7 +154,7 @@ class TrainConfig:
         if self.seed < 0:
             raise BadInput(f"--seed must be >= 0, got {self.seed}")
         if self.threads < 1:
-            raise BadInput(f"threads must be >= 1, got {self.threads}")
+            raise BadInput(f"--threads must be >= 1, got {self.threads}")
         if self.batch < 1:
             raise BadInput(f"--batch must be >= 1, got {self.batch}")
         if not 0.0 <= self.ema < 1.0:
@@ -268,10 +269,11 @@ class Ema:
 
 def run_epoch(model: Student, opt: torch.optim.Optimizer, data: StudentData,
               plan: tuple[np.ndarray, np.ndarray, np.ndarray], n_steps: int, cfg: TrainConfig,
-              step: int, total: int, bar: tqdm, ema: Ema | None = None) -> tuple[dict, int]:
+              step: int, total: int, bar: tqdm, ema: Ema | None = None,
+              on_step: Callable[[], None] | None = None) -> tuple[dict, int]:
     """Up to ``n_steps`` optimizer steps of ``cfg.batch`` samples over one epoch's plan
-    (stopping at ``total``), each followed by the weight average's update; returns (mean
-    train loss terms, step after the epoch)."""
+    (stopping at ``total``), each followed by the weight average's update and ``on_step()``;
+    returns (mean train loss terms, step after the epoch)."""
     order, views, cuts = plan
     batch, weights = cfg.batch, cfg.loss_weights
     sums: dict[str, float] = {}
@@ -288,11 +290,14 @@ def run_epoch(model: Student, opt: torch.optim.Optimizer, data: StudentData,
         step, n = step + 1, n + 1
         bar.update(1)
         bar.set_postfix(loss=f"{terms['loss'].item():.3f}")
+        if on_step is not None:
+            on_step()
     return {k: v / max(1, n) for k, v in sums.items()}, step
 
 
-def train(cfg: TrainConfig) -> Path:
+def train(cfg: TrainConfig, on_step: Callable[[], None] | None = None) -> Path:
     """Train one student; returns the model checkpoint file (``cfg.out/student.pt``).
+    ``on_step()`` after every optimizer step (model.side_by_side counts steps with it).
 
     One function on purpose, as nanoGPT's train.py: the story (seed, data, model and
     optimizer, loop with the best epoch kept, save) reads top to bottom, its steps in small
@@ -330,7 +335,7 @@ def train(cfg: TrainConfig) -> Path:
     for epoch, plan in enumerate(plans, start=1):
         te = time.perf_counter()
         bar.set_description(f"train ({cfg.teacher}) epoch {epoch}/{cfg.epochs}")
-        means, step = run_epoch(model, opt, data, plan, steps[epoch - 1], cfg, step, total, bar, ema)
+        means, step = run_epoch(model, opt, data, plan, steps[epoch - 1], cfg, step, total, bar, ema, on_step)
         record = {"epoch": epoch, "step": step, "lr": get_lr(step - 1, total, cfg.lr), "train": means,
                   "seconds": round(time.perf_counter() - te, 3)}
         if val is not None:

@@ -10,7 +10,7 @@ from harness.common.errors import BadInput
 from harness.common.lock import FolderLock
 from sumo_scimm.options import add_backend_options, add_vehicle_option, backend_of
 
-# = model.train.EPOCHS, EPOCH_STEPS, PATIENCE, BATCH, EMA, LR, ("none", *model.data.TEACHERS),
+# = model.train.EPOCHS, EPOCH_STEPS, PATIENCE, BATCH, EMA, LR, THREADS, ("none", *model.data.TEACHERS),
 # model.loss.LossWeights()'s
 # scimm and mode (a test checks); importing model.train here would load torch for every
 # sumo-scimm command
@@ -20,6 +20,7 @@ PATIENCE = None
 BATCH = 128
 EMA = 0.0
 LR = 1e-3
+THREADS = 2
 TEACHERS = ("none", "control", "fixed", "scimm", "smoother")
 TEACHER_WEIGHT, MODE_WEIGHT = 1.0, 0.1
 EVAL_SET = "town12_short"  # = model.reproduce.EVAL_SET
@@ -51,6 +52,7 @@ def _train(args: argparse.Namespace) -> int:
     cfg = TrainConfig(data=Path(args.data), out=Path(args.out), teacher=args.teacher,
                       val=Path(args.val) if args.val else None, seed=args.seed, epochs=args.epochs,
                       epoch_steps=args.epoch_steps, patience=args.patience, batch=args.batch, ema=args.ema, lr=args.lr,
+                      threads=args.threads,
                       cache_dir=Path(args.cache) if args.cache else None, weights=weights)
     with FolderLock(cfg.out):  # one command per output folder (harness.common.lock)
         print(f"model checkpoint: {train(cfg)}")
@@ -130,6 +132,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     tr.add_argument("--ema", type=float, default=EMA,
                     help=f"decay of the weight average that is validated and saved, e.g. 0.99; 0 = the raw "
                     f"weights (default {EMA:g})")
+    tr.add_argument("--threads", type=int, default=THREADS,
+                    help=f"torch threads; a training is deterministic at a given thread count ('reproduce' "
+                    f"trains with 1, two students at a time) (default {THREADS})")
     tr.add_argument("--out", help="output folder: student.pt, manifest.json and history.json; required")
     tr.add_argument("--cache", help="BEV cache folder (default DATA/cache), shared by trainings on the same data")
     tr.set_defaults(func=_train)
@@ -142,7 +147,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     c.set_defaults(func=_curves)
 
     r = sub.add_parser("reproduce", help="the paper's whole experiment: collect, teachers, train, eval, tables",
-                       description="Collect -> teachers -> train baseline/control/fixed/scimm/smoother per seed -> "
+                       description="Collect -> teachers -> train baseline/control/fixed/scimm/smoother of every "
+                       "seed, two at a time side by side -> "
                        f"eval on {EVAL_SET} and {SECOND_SET} -> Tables 2-4 against the baseline and the control, "
                        "Fig. 4-5. Resumes: finished stages are skipped.")
     r.add_argument("--seeds", default="1", help="training/evaluation seeds per arm: K for seeds 0..K-1, or A-B "

@@ -11,7 +11,7 @@ import pytest
 from harness.common.errors import BadInput
 from model.arm_tables import (AGREES, DIFFERS, NO_INTERVAL, NOT_REPRODUCED, REPRODUCED, UNDECIDED, claims, eval_stage,
                               hazard_ds, paper_change, paper_claims, ranking, references, size_agreement, stage_table,
-                              verdict)
+                              train_seconds, train_stage, verdict)
 from model.reproduce import SECOND_SET, select_arms
 
 
@@ -123,6 +123,17 @@ def test_stage_table_has_a_row_per_arm_and_seed_and_the_total():
     assert "| baseline | 0 | 400 | 200 | 150 |" in md
     assert "| scimm | 0 | 380 | 180 | - |" in md  # its second-set evaluation has not run
     assert "Total: 1620 s (27.0 min)" in md
+
+
+def test_a_training_side_by_side_counts_its_share_of_the_stage():
+    # seeds 1-2 of two arms trained side by side in one 1,000 s stage: 250 s each; seed 0's
+    # own stage stays its own; a seed no stage trained has none
+    times = {"train scimm s0": 380.0, train_stage(4, range(1, 3)): 1000.0, "eval scimm s1": 180.0}
+    assert train_stage(4, range(1, 3)) == "train 4 students s1-2"
+    assert [train_seconds(times, "scimm", k) for k in (0, 1, 2, 3)] == [380.0, 250.0, 250.0, None]
+    md = stage_table(times, ["baseline", "scimm"], [1], "town12_short", None)
+    assert "| train 4 students s1-2 | 1000 |" in md
+    assert "| baseline | 1 | 250 | - |" in md and "| scimm | 1 | 250 | 180 |" in md
 
 
 def test_references_are_baseline_then_control_else_the_first_arm():

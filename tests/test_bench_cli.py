@@ -88,7 +88,8 @@ def test_bench_soak_and_reproduce_figures(tmp_path, capsys):
     for N = 5) and reports their worker memory; --reproduce reads a reproduce run's stage
     times and each arm and seed's; a folder without stages.json is one line, exit 2."""
     (tmp_path / "rep").mkdir()
-    stages = {"collect": 600.0, "train scimm s0": 1000.5, "eval scimm s0": 200.0, "train baseline s0": 150.0}
+    stages = {"collect": 600.0, "train scimm s0": 1000.5, "eval scimm s0": 200.0, "train baseline s0": 150.0,
+              "train 4 students s1-2": 800.0, "eval scimm s1": 100.0, "eval fixed s2": 120.0, "eval expert s0": 90.0}
     (tmp_path / "rep" / "stages.json").write_text(json.dumps(stages))
     out = tmp_path / "bench.json"
     argv = ["bench", "--routes-count", "1", "--rounds", "1", "--agent", "route_follower", "--soak", "5", "--reproduce",
@@ -99,10 +100,13 @@ def test_bench_soak_and_reproduce_figures(tmp_path, capsys):
     assert r["soak"]["route_runs"] == 8
     assert r["soak"]["repetitions"] == 2
     assert r["soak"]["rss"]["peak_mb"] > 0
-    assert r["reproduce"]["reproduce_wall_s"] == 1950.5
-    assert "32.5 min" in printed
-    # an arm and seed: its training plus its evaluation (none recorded: the training alone)
-    assert r["reproduce"]["reproduce_arm_seed_s"] == {"scimm s0": 1200.5, "baseline s0": 150.0}
+    assert r["reproduce"]["reproduce_wall_s"] == 3060.5
+    assert "51.0 min" in printed
+    # an arm and seed: its training plus its evaluation (none recorded: the training alone); a
+    # training side by side counts its share of the stage: 800 s / 4 students = 200 s; the
+    # expert's evaluation is no arm and seed
+    assert r["reproduce"]["reproduce_arm_seed_s"] == {"scimm s0": 1200.5, "baseline s0": 150.0, "scimm s1": 300.0,
+                                                      "fixed s2": 320.0}
     line = next(ln for ln in printed.splitlines() if "arm and seed scimm s0" in ln)
     assert line.split()[5:7] == ["20.0", "min,"], line
     assert "soak" in printed
@@ -110,10 +114,11 @@ def test_bench_soak_and_reproduce_figures(tmp_path, capsys):
 
 
 def test_one_arm_and_seed_is_trained_evaluated_and_set_beside_the_reproduce_runs_student(tmp_path):
-    """arm_seed_figure on a reproduce-shaped folder (a small cached training set with an
-    SC-IMM teacher, a validation set, the shipped SC-IMM student as the run's own seed-0
-    student): it trains the default recipe, times training and evaluation, and scores both
-    students on the validation routes (here town12_smoke for every set, to stay short)."""
+    """arm_seed_figure on a reproduce-shaped folder (a small cached training set with SC-IMM
+    and Fixed-IMM teachers, a validation set, the shipped SC-IMM student as the run's own
+    seed-0 student): it trains both arms' students side by side with the default recipe, times
+    that and each evaluation, and scores the SC-IMM one and the run's own on the validation
+    routes (here town12_smoke for every set, to stay short)."""
     import shutil
 
     from model.agent import SHIPPED
@@ -123,6 +128,7 @@ def test_one_arm_and_seed_is_trained_evaluated_and_set_beside_the_reproduce_runs
     data = tmp_path / "rep" / "data"
     fake_dataset(data / "train")
     write_teacher(data / "train", "scimm")
+    write_teacher(data / "train", "fixed")
     shutil.move(data / "train" / "cache", data / "cache")
     fake_val(data / "val", data / "cache")
     before = tmp_path / "rep" / "models" / "scimm_s0"
@@ -130,9 +136,11 @@ def test_one_arm_and_seed_is_trained_evaluated_and_set_beside_the_reproduce_runs
     shutil.copy(SHIPPED / "scimm" / "student.pt", before / "student.pt")
     (before / "history.json").write_text(json.dumps({"chosen_val": {"loss": 9.5}}))
     r = arm_seed_figure(str(tmp_path / "rep"), 2, routes="town12_smoke", val_routes="town12_smoke")
-    assert (r["arm"], r["seed"], r["arm_routes"], r["arm_workers"]) == ("scimm", 0, "town12_smoke", 2)
-    assert r["arm_seed_s"] == pytest.approx(r["arm_train_s"] + r["arm_eval_s"], abs=0.11)
-    assert r["arm_train_s"] > 0 and r["arm_eval_s"] > 0 and r["arm_seed_target_s"] == 300.0
+    assert (r["arm"], r["arms"], r["seed"], r["arm_routes"], r["arm_workers"]) == (
+        "scimm", ["scimm", "fixed"], 0, "town12_smoke", 2)
+    assert r["arm_seed_s"] == pytest.approx((r["arm_train_s"] + sum(r["arm_eval_s"])) / 2, abs=0.11)
+    assert r["arm_train_s"] > 0 and min(r["arm_eval_s"]) > 0 and len(r["arm_eval_s"]) == 2
+    assert r["arm_seed_target_s"] == 300.0
     assert r["arm_steps"] == 16 and r["arm_chosen_epoch"] in range(1, 9)  # 8 epochs of 2 batches
     assert math.isfinite(r["arm_val_loss"]) and 0.0 <= r["arm_val_ds"] <= 100.0
     assert r["before"] == str(before) and r["before_val_loss"] == 9.5 and 0.0 <= r["before_val_ds"] <= 100.0

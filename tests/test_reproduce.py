@@ -23,8 +23,8 @@ def test_reproduce_runs_every_stage_and_resumes_without_redoing_them(tmp_path, c
             "--arms", ",".join(reversed(arms)), "--second-routes", "town12_smoke"]
     assert main(argv) == 0
     stages = json.loads((out / "stages.json").read_text())
+    assert "train 3 students s0-0" in stages  # side by side, one stage
     for arm in arms:
-        assert f"train {arm} s0" in stages
         assert f"eval {arm} s0" in stages
         assert f"eval {arm} s0 on town12_smoke" in stages
         assert (out / "models" / f"{arm}_s0" / "student.pt").is_file()

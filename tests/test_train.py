@@ -248,10 +248,10 @@ def test_with_a_weight_average_the_average_is_validated_and_saved(sets, tmp_path
 
 # --- command line -------------------------------------------------------------------------------
 def test_the_cli_defaults_are_the_trainings():
-    from model.train import BATCH, EMA, EPOCH_STEPS, EPOCHS, LR, PATIENCE
+    from model.train import BATCH, EMA, EPOCH_STEPS, EPOCHS, LR, PATIENCE, THREADS
     from sumo_scimm import model_commands as mc
-    assert (mc.EPOCHS, mc.EPOCH_STEPS, mc.PATIENCE, mc.BATCH, mc.EMA, mc.LR) == (EPOCHS, EPOCH_STEPS, PATIENCE, BATCH,
-                                                                                 EMA, LR)
+    assert (mc.EPOCHS, mc.EPOCH_STEPS, mc.PATIENCE, mc.BATCH, mc.EMA, mc.LR, mc.THREADS) == (
+        EPOCHS, EPOCH_STEPS, PATIENCE, BATCH, EMA, LR, THREADS)
     assert mc.TEACHERS == ("none", *TEACHERS)
     assert (mc.TEACHER_WEIGHT, mc.MODE_WEIGHT) == (LossWeights().scimm, LossWeights().mode)
 
@@ -270,6 +270,7 @@ def test_the_cli_defaults_are_the_trainings():
     (["--ema", "-0.5"], "--ema must be in [0, 1)"),
     (["--lr", "0"], "--lr must be in (2e-05, 1)"),
     (["--lr", "nan"], "--lr must be in (2e-05, 1)"),
+    (["--threads", "0"], "--threads must be >= 1"),
 ])
 def test_bad_weights_and_patience_are_one_line_and_write_nothing(tmp_path, capsys, args, message):
     fake_dataset(tmp_path / "data")

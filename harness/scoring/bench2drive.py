@@ -28,6 +28,7 @@ the car's own vectors and the size of the yaw rate, so its figures do not depend
 """
 from __future__ import annotations
 
+import functools
 import json
 import math
 import re
@@ -118,43 +119,61 @@ def write_metric_info(path: Path, info: dict[str, np.ndarray]) -> None:
 
 # --- smoothness ----------------------------------------------------------------------------
 def _unwrap(h: np.ndarray) -> np.ndarray:
-    """nuPlan's phase unwrap (steps of 2 pi), applied as Bench2Drive applies it, to deg/s values."""
+    """nuPlan's phase unwrap (steps of 2 pi) along the last axis, applied as Bench2Drive
+    applies it, to deg/s values."""
     adjust = np.zeros_like(h)
-    adjust[1:] = np.cumsum(np.round(np.diff(h) / (2 * math.pi)))
+    adjust[..., 1:] = np.cumsum(np.round(np.diff(h, axis=-1) / (2 * math.pi)), axis=-1)
     return h - 2 * math.pi * adjust
 
 
-def _inside(x: np.ndarray, lo: float, hi: float) -> bool:
-    return bool(np.all((x > lo) & (x < hi)))
+@functools.lru_cache(maxsize=None)
+def _savgol_matrix(n: int, deriv: int) -> np.ndarray:
+    """(n, n) matrix S with S @ x = scipy's savgol_filter(x, min(WINDOW, n), ORDER, deriv,
+    delta=DELTA) for any x of n samples: the filter (mode 'interp', the default Bench2Drive
+    keeps) is linear in x, so its columns are the filter of the unit vectors."""
+    from scipy.signal import savgol_filter
+    return savgol_filter(np.eye(n), min(WINDOW, n), ORDER, deriv=deriv, delta=DELTA, axis=0)
+
+
+def _all_inside(x: np.ndarray, lo: float, hi: float) -> np.ndarray:
+    """(C,) bool: every sample of each row of x (C, n) strictly inside (lo, hi)."""
+    return np.all((x > lo) & (x < hi), axis=-1)
+
+
+def _comfortable_chunks(seg: dict[str, np.ndarray]) -> np.ndarray:
+    """(C,) bool: whether every sample of each of C segments of n >= 3 samples (arrays
+    (C, n, 3)) passes the six comfort bounds, each segment filtered on its own."""
+    acc = seg["acceleration"][..., :2]
+    n = acc.shape[1]
+    smooth, slope = _savgol_matrix(n, 0), _savgol_matrix(n, 1)
+    lon = np.einsum("cij,cij->ci", acc, seg["forward_vector"][..., :2])
+    lat = np.einsum("cij,cij->ci", acc, seg["right_vector"][..., :2])
+    mag = np.hypot(acc[..., 0], acc[..., 1])
+    yaw_rate = _unwrap(seg["angular_velocity"][..., 2]) @ smooth.T
+    lon, lat, mag = lon @ smooth.T, lat @ smooth.T, mag @ smooth.T
+    jerk, lon_jerk = mag @ slope.T, lon @ slope.T
+    return (_all_inside(lon, *LON_ACCEL) & _all_inside(lat, -LAT_ACCEL, LAT_ACCEL) & _all_inside(jerk, -JERK, JERK)
+            & _all_inside(lon_jerk, -LON_JERK, LON_JERK) & _all_inside(yaw_rate, -YAW_ACCEL, YAW_ACCEL)
+            & _all_inside(yaw_rate, -YAW_RATE, YAW_RATE))
 
 
 def comfortable(seg: dict[str, np.ndarray]) -> bool:
     """Whether every sample of a segment (>= 3 samples) passes the six comfort bounds."""
-    from scipy.signal import savgol_filter
-    acc = seg["acceleration"][:, :2]
-    w = min(WINDOW, len(acc))
-    lon = np.einsum("ij,ij->i", acc, seg["forward_vector"][:, :2])
-    lat = np.einsum("ij,ij->i", acc, seg["right_vector"][:, :2])
-    mag = np.hypot(acc[:, 0], acc[:, 1])
-    yaw_rate = savgol_filter(_unwrap(seg["angular_velocity"][:, 2]), w, ORDER)
-    lon, lat, mag = (savgol_filter(s, w, ORDER) for s in (lon, lat, mag))
-    jerk = savgol_filter(mag, w, ORDER, deriv=1, delta=DELTA)
-    lon_jerk = savgol_filter(lon, w, ORDER, deriv=1, delta=DELTA)
-    return (_inside(lon, *LON_ACCEL) and _inside(lat, -LAT_ACCEL, LAT_ACCEL) and _inside(jerk, -JERK, JERK)
-            and _inside(lon_jerk, -LON_JERK, LON_JERK) and _inside(yaw_rate, -YAW_ACCEL, YAW_ACCEL)
-            and _inside(yaw_rate, -YAW_RATE, YAW_RATE))
+    return bool(_comfortable_chunks({k: a[None] for k, a in seg.items()})[0])
 
 
 def route_smoothness(info: dict[str, np.ndarray]) -> float | None:
     """Share of a route's comfortable 20-sample chunks (1.0 or 0.0 for a route of <= 20
-    samples); None below 3 samples (Bench2Drive's tool stops on such a route)."""
+    samples); None below 3 samples (Bench2Drive's tool stops on such a route). The chunks
+    are filtered together, each on its own, as Bench2Drive filters them one by one."""
     n = len(info["location"])
     if n < ORDER + 1:
         return None
     if n <= CHUNK:
         return 1.0 if comfortable(info) else 0.0
-    chunks = [comfortable({k: a[i:i + CHUNK] for k, a in info.items()}) for i in range(0, n - CHUNK + 1, CHUNK)]
-    return sum(chunks) / len(chunks)
+    c = (n - CHUNK) // CHUNK + 1  # whole chunks; the samples after the last are not read
+    chunks = _comfortable_chunks({k: a[:c * CHUNK].reshape(c, CHUNK, -1) for k, a in info.items()})
+    return float(chunks.sum()) / c
 
 
 # --- Bench2Drive's record keys -------------------------------------------------------------

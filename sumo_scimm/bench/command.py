@@ -109,10 +109,11 @@ def _bench(args: argparse.Namespace) -> int:
                   f"(target <= {ARM_SEED_TARGET_S / 60:g} min)")
     if args.arm:
         r["arm_seed"] = a = arm_seed_figure(args.arm, args.workers, args.vehicle)
-        print(f"arm and seed, now       {a['arm_seed_s'] / 60:8.1f} min: {a['arm']} seed {a['seed']} trained "
-              f"{a['arm_train_s']:.0f} s ({a['arm_steps']} steps, validation L_origin {a['arm_val_loss']:.3f} at epoch "
-              f"{a['arm_chosen_epoch']}) + {a['arm_routes']} on {a['arm_workers']} workers {a['arm_eval_s']:.0f} s "
-              f"(target <= {ARM_SEED_TARGET_S / 60:g} min)")
+        evals = " and ".join(f"{t:.0f}" for t in a["arm_eval_s"])
+        print(f"arm and seed, now       {a['arm_seed_s'] / 60:8.1f} min: {' and '.join(a['arms'])} of seed {a['seed']} "
+              f"trained side by side {a['arm_train_s']:.0f} s ({a['arm_steps']} steps each; {a['arm']}'s validation "
+              f"L_origin {a['arm_val_loss']:.3f} at epoch {a['arm_chosen_epoch']}) + {a['arm_routes']} on "
+              f"{a['arm_workers']} workers {evals} s, over {len(a['arms'])} (target <= {ARM_SEED_TARGET_S / 60:g} min)")
         print(f"  this recipe on val      L_origin {a['arm_val_loss']:.3f}, DS {a['arm_val_ds']:.2f} (one student)")
         if "before" in a:
             print(f"  {a['before']} on val  L_origin {a['before_val_loss']:.3f}, DS {a['before_val_ds']:.2f}")
@@ -148,9 +149,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     bn.add_argument("--reproduce", metavar="DIR",
                     help="also print the wall time a finished 'sumo-scimm reproduce --out DIR' recorded")
     bn.add_argument("--arm", metavar="DIR",
-                    help="also time one arm and seed now (the SC-IMM student of seed 0 trained on the data of "
-                         "'sumo-scimm reproduce --out DIR', then town12_short on --workers; then, not timed, it and the "
-                         "reproduce run's student of seed 0 on val; about 6 min timed and 3 min untimed)")
+                    help="also time one arm and seed now, as reproduce runs it (the SC-IMM and Fixed-IMM students of "
+                         "seed 0 trained side by side on the data of 'sumo-scimm reproduce --out DIR', then each on "
+                         "town12_short on --workers: the time over two; then, not timed, the SC-IMM one and the "
+                         "reproduce run's on val; about 10 min timed and 3 min untimed)")
     bn.add_argument("--replay", metavar="DIR",
                     help="also time 'sumo-scimm replay' of the eval run DIR (its every route) with three of the "
                          "shipped students (baseline, fixed, scimm) on --workers (docs/design.md §11: an expert run of "

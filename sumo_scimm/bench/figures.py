@@ -15,10 +15,12 @@ sumo_scimm.bench.command prints them as a table and optionally writes them as JS
   recording the expert as ``sumo-scimm collect`` does;
 - with ``--eval``: wall time of a whole ``town12_short`` evaluation on 2 workers with the
   agent, and the worker memory (RSS) over it;
-- with ``--arm DIR``: one arm and seed of the experiment, run now: the SC-IMM student of
-  seed 0 trained with the default recipe on the data of a ``reproduce`` output DIR, then
-  evaluated on ``town12_short`` on ``--workers`` (target <= 5 min); then, untimed, its
-  validation L_origin and ``val`` DS beside those of DIR's own seed-0 SC-IMM student.
+- with ``--arm DIR``: one arm and seed of the experiment, run now as ``reproduce`` runs
+  it: the SC-IMM and Fixed-IMM students of seed 0 trained side by side with the default
+  recipe on the data of a ``reproduce`` output DIR, then each evaluated on
+  ``town12_short`` on ``--workers``, the wall time over the two (target <= 5 min); then,
+  untimed, the SC-IMM student's validation L_origin and ``val`` DS beside those of DIR's
+  own seed-0 SC-IMM student.
 
 The closed-loop figures and the IMM's are the median of ``--rounds`` passes (fresh
 processes for the IMM), every pass printed and written beside it.
@@ -31,6 +33,7 @@ from __future__ import annotations
 
 import itertools
 import json
+import re
 import tempfile
 import time
 from pathlib import Path
@@ -64,21 +67,24 @@ def check_arm_folder(folder: str) -> Path:
     return data
 
 
-def arm_seed_figure(folder: str, workers: int, vehicle: str = "carla", arm: str = "scimm", seed: int = 0,
-                    routes: str = "town12_short", val_routes: str = "val") -> dict:
-    """Wall time of one arm and seed as ``reproduce`` runs it, now: ``arm``'s student of
-    ``seed`` trained with the default recipe on FOLDER/data/train (validation FOLDER/data/val,
-    BEV cache FOLDER/data/cache, built first if missing and not timed), then evaluated on
-    ``routes`` on ``workers`` workers; both in a temporary folder.
+def arm_seed_figure(folder: str, workers: int, vehicle: str = "carla", arms: tuple[str, ...] = ("scimm", "fixed"),
+                    seed: int = 0, routes: str = "town12_short", val_routes: str = "val") -> dict:
+    """Wall time of one arm and seed as ``reproduce`` runs it, now: the students of ``arms``
+    of ``seed`` trained side by side with the default recipe (model.side_by_side, one
+    thread each) on FOLDER/data/train (validation FOLDER/data/val, BEV cache
+    FOLDER/data/cache, built first if missing and not timed), then each evaluated on
+    ``routes`` on ``workers`` workers; all in a temporary folder. The figure is the whole
+    wall time over the number of students.
 
-    Then, not timed, the recipe's quality beside the student FOLDER/models/<arm>_s<seed> that
-    the ``reproduce`` run trained (if present): the validation L_origin of each (from their
-    histories) and the driving score of each on ``val_routes``."""
+    Then, not timed, the first arm's quality beside the student FOLDER/models/<arm>_s<seed>
+    that the ``reproduce`` run trained (if present): the validation L_origin of each (from
+    their histories) and the driving score of each on ``val_routes``."""
     from harness.runs.evaluate import Backend, evaluate
     from model.cache import build_cache
-    from model.train import VIEWS, TrainConfig, train
+    from model.reproduce import ARMS
+    from model.side_by_side import SIDE_BY_SIDE, train_side_by_side
+    from model.train import VIEWS, TrainConfig
     data = check_arm_folder(folder)
-    teacher = None if arm in ("none", "baseline") else arm
     build_cache(data / "train", data / "cache", VIEWS, workers)  # the shared BEV cache, as reproduce has it
     build_cache(data / "val", data / "cache", 1, workers)
 
@@ -87,22 +93,25 @@ def arm_seed_figure(folder: str, workers: int, vehicle: str = "carla", arm: str 
         return res.global_record["scores_mean"]["score_composed"]
 
     with tempfile.TemporaryDirectory(prefix="sumo-scimm-bench-") as tmp:
-        cfg = TrainConfig(data=data / "train", out=Path(tmp) / "model", teacher=teacher or "none",
-                          val=data / "val", seed=seed, cache_dir=data / "cache")
+        cfgs = [TrainConfig(data=data / "train", out=Path(tmp) / arm, teacher=dict(ARMS)[arm], val=data / "val",
+                            seed=seed, cache_dir=data / "cache") for arm in arms]
         t0 = time.perf_counter()
-        ckpt = train(cfg)
+        ckpts = train_side_by_side(cfgs)
         t_train = time.perf_counter() - t0
-        history = json.loads((Path(tmp) / "model" / "history.json").read_text())
-        t0 = time.perf_counter()
-        evaluate(routes, "student", str(ckpt), Path(tmp) / "run", seed=seed, backend=Backend(workers),
-                 vehicle=vehicle)
-        t_eval = time.perf_counter() - t0
-        r = {"arm": arm, "seed": seed, "arm_train_s": round(t_train, 1), "arm_eval_s": round(t_eval, 1),
-             "arm_seed_s": round(t_train + t_eval, 1), "arm_routes": routes, "arm_workers": workers,
+        history = json.loads((Path(tmp) / arms[0] / "history.json").read_text())
+        t_eval = []
+        for arm, ckpt in zip(arms, ckpts):
+            t0 = time.perf_counter()
+            evaluate(routes, "student", str(ckpt), Path(tmp) / f"run_{arm}", seed=seed, backend=Backend(workers),
+                     vehicle=vehicle)
+            t_eval.append(round(time.perf_counter() - t0, 1))
+        r = {"arm": arms[0], "arms": list(arms), "seed": seed, "arm_train_s": round(t_train, 1),
+             "arm_side_by_side": SIDE_BY_SIDE, "arm_eval_s": t_eval,
+             "arm_seed_s": round((t_train + sum(t_eval)) / len(arms), 1), "arm_routes": routes, "arm_workers": workers,
              "arm_seed_target_s": ARM_SEED_TARGET_S, "arm_steps": history["history"][-1]["step"],
-             "arm_batch": cfg.batch, "arm_chosen_epoch": history["chosen_epoch"],
-             "arm_val_loss": _chosen_loss(history), "arm_val_ds": val_ds(ckpt, Path(tmp) / "val")}
-        before = Path(folder) / "models" / f"{'baseline' if teacher is None else arm}_s{seed}"
+             "arm_batch": cfgs[0].batch, "arm_chosen_epoch": history["chosen_epoch"],
+             "arm_val_loss": _chosen_loss(history), "arm_val_ds": val_ds(ckpts[0], Path(tmp) / "val")}
+        before = Path(folder) / "models" / f"{arms[0]}_s{seed}"
         if (before / "student.pt").is_file() and (before / "history.json").is_file():
             old = json.loads((before / "history.json").read_text())
             r.update(before=str(before), before_val_loss=_chosen_loss(old),
@@ -119,14 +128,19 @@ def reproduce_figure(folder: str) -> dict:
     """The stage wall times a finished ``sumo-scimm reproduce`` recorded in FOLDER/stages.json
     (measured when it ran, not now: reproduce takes about an hour)."""
     from harness.common.errors import BadInput
+    from model.arm_tables import train_seconds
     path = Path(folder) / "stages.json"
     try:
         times = json.loads(path.read_text())
         total = float(sum(times.values()))
     except (OSError, ValueError, TypeError, AttributeError) as exc:
         raise BadInput(f"--reproduce {folder}: no readable stages.json of 'sumo-scimm reproduce' ({exc})") from None
-    arm_seeds = {name[len("train "):]: t + times.get("eval " + name[len("train "):], 0.0)
-                 for name, t in times.items() if name.startswith("train ")}  # "scimm s0" -> train + eval [s]
+    # "scimm s0" -> its training (or its share of a stage side by side) + its evaluation on the
+    # main set [s], for every arm and seed with a training (an expert's evaluation has none)
+    keys = dict.fromkeys((m[1], int(m[2])) for name in times
+                         if (m := re.fullmatch(r"(?:train|eval) (\S+) s(\d+)", name)))
+    arm_seeds = {f"{arm} s{seed}": t + times.get(f"eval {arm} s{seed}", 0.0)
+                 for arm, seed in keys if (t := train_seconds(times, arm, seed)) is not None}
     return {"reproduce_dir": str(folder), "reproduce_wall_s": round(total, 1), "stages": len(times),
             "reproduce_target_s": REPRODUCE_TARGET_S,
             "reproduce_arm_seed_s": {k: round(v, 1) for k, v in arm_seeds.items()}}

@@ -1,0 +1,104 @@
+"""Several students trained at once: spawned processes, one torch thread each.
+
+    train_side_by_side([cfg_a, cfg_b, cfg_c], processes=2)  # -> [a/student.pt, b/..., c/...]
+
+Why: a training step of the student is a few hundred small operations (convolutions on a
+64 x 64 BEV, attention over 64 tokens of width 64, batch 128). On two threads each
+operation is split in two and the threads wait for each other about as long as they
+compute, so two trainings with one thread each, side by side on 2 cores, finish sooner
+than the same two one after the other on two threads: 53.7 s against 2 x 38.3 s for 400
+steps of an SC-IMM student with its data loading and one validation (0.70 x; 2-core
+Intel Xeon). ``sumo-scimm reproduce`` trains its students so (docs/student.md, "Cost of
+one arm and seed").
+
+Each training runs ``model.train.train`` unchanged with ``threads`` = 1, and a training
+is deterministic at a given thread count, so a student trained here has the weights that
+``sumo-scimm train ... --threads 1`` gives alone (its manifest records ``threads``).
+The BEV caches the trainings read are rendered first, in the calling process, once each.
+A training's own output (epoch lines) goes to ``train.log`` in its output folder; the
+parent shows one progress bar over every training's steps. A training that fails raises
+its error here once the others have finished; a stop (Ctrl-C, SIGTERM) ends every training.
+"""
+from __future__ import annotations
+
+import multiprocessing as mp
+import signal
+import sys
+import time
+import traceback
+from dataclasses import replace
+from pathlib import Path
+
+from tqdm import tqdm
+
+from model.train import TrainConfig
+
+SIDE_BY_SIDE = 2  # trainings at once (one per core of a 2-core machine)
+THREADS_EACH = 1  # torch threads of each
+LOG_NAME = "train.log"  # a training's own output, in its output folder
+_steps = None  # the shared step counter, in a training process
+
+
+def train_side_by_side(cfgs: list[TrainConfig], processes: int = SIDE_BY_SIDE) -> list[Path]:
+    """Train every config (with ``threads`` = THREADS_EACH), ``processes`` at a time, each
+    in its own spawned process; returns the checkpoint files in the order of ``cfgs``."""
+    if not cfgs:
+        return []
+    cfgs = [replace(c, threads=THREADS_EACH) for c in cfgs]
+    _build_caches(cfgs)
+    for c in cfgs:
+        Path(c.out).mkdir(parents=True, exist_ok=True)
+    ctx = mp.get_context("spawn")
+    steps = ctx.Value("q", 0)
+    total = sum(c.epochs * c.epoch_steps if c.max_steps is None else c.max_steps for c in cfgs) \
+        if all(c.epoch_steps for c in cfgs) else None  # 0 = the whole draw: not known before loading
+    bar = tqdm(total=total, desc=f"train {len(cfgs)} students, {processes} at a time", unit="step", disable=None)
+    with ctx.Pool(min(processes, len(cfgs)), initializer=_init, initargs=(steps,)) as pool:
+        pending = [pool.apply_async(_train_one, (c,)) for c in cfgs]
+        while not all(p.ready() for p in pending):
+            time.sleep(0.5)
+            bar.update(steps.value - bar.n)
+        bar.update(steps.value - bar.n)
+        bar.close()
+        return [p.get() for p in pending]  # the first failure raised, in the order of cfgs
+
+
+def _build_caches(cfgs: list[TrainConfig]) -> None:
+    """The BEV caches of the trainings' datasets, rendered here first, once each: trainings
+    side by side would render a shared cache twice, and a pool's process cannot start
+    render processes of its own."""
+    from model.cache import build_cache
+    from model.data import check_dataset
+    from model.train import VIEWS
+    done = set()
+    for c in cfgs:
+        cache = Path(c.cache_dir) if c.cache_dir else Path(c.data) / "cache"  # as model.train.train has it
+        for folder, views in [(c.data, VIEWS)] + ([(c.val, 1)] if c.val else []):
+            if (key := (str(folder), str(cache), views)) not in done:
+                check_dataset(Path(folder))
+                build_cache(Path(folder), cache, views)
+                done.add(key)
+
+
+def _init(steps) -> None:
+    global _steps
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C reaches the parent, which ends the pool
+    _steps = steps
+
+
+def _count_step() -> None:
+    with _steps.get_lock():
+        _steps.value += 1
+
+
+def _train_one(cfg: TrainConfig) -> Path:
+    from model.train import train
+    with open(Path(cfg.out) / LOG_NAME, "w", buffering=1) as log:  # line by line, to follow it
+        sys.stdout = sys.stderr = log  # tqdm sees no terminal: its bar is off; epoch lines go here
+        try:
+            return train(cfg, on_step=_count_step)
+        except BaseException:
+            traceback.print_exc()  # into the log; the parent raises the error itself
+            raise
+        finally:
+            sys.stdout, sys.stderr = sys.__stdout__, sys.__stderr__

@@ -3,13 +3,12 @@
     train_side_by_side([cfg_a, cfg_b, cfg_c], processes=2)  # -> [a/student.pt, b/..., c/...]
 
 Why: a training step of the student is a few hundred small operations (convolutions on a
-64 x 64 BEV, attention over 64 tokens of width 64, batch 128). On two threads each
-operation is split in two and the threads wait for each other about as long as they
-compute, so two trainings with one thread each, side by side on 2 cores, finish sooner
-than the same two one after the other on two threads: 53.7 s against 2 x 38.3 s for 400
-steps of an SC-IMM student with its data loading and one validation (0.70 x; 2-core
-Intel Xeon). ``sumo-scimm reproduce`` trains its students so (docs/student.md, "Cost of
-one arm and seed").
+64 x 64 BEV, attention over 64 tokens of width 64, batch 128), which two threads share
+badly: two trainings with one thread each, side by side on 2 cores, finish in 0.78-0.82 x
+the time of the same two one after the other on two threads (an SC-IMM and a Fixed-IMM
+student of 800 steps each, data loading and validation included: 117.8 s against 150.9 s,
+118.3 s against 144.2 s; 2-core Intel Xeon). ``sumo-scimm reproduce`` trains its students
+so (docs/student.md, "Cost of one arm and seed").
 
 Each training runs ``model.train.train`` unchanged with ``threads`` = 1, and a training
 is deterministic at a given thread count, so a student trained here has the weights that

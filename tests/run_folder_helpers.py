@@ -1,6 +1,7 @@
 """Helpers of the run-folder and bad-input tests (test_run_folder.py, test_write_errors.py,
 test_bad_input.py): the smoke commands, running the CLI in-process, and checks of a run
-folder's files."""
+folder's files; a route file of one smoke route (tests of whole pipelines whose barely
+trained students stand until the route's timeout, about 10 s of wall time a route)."""
 from __future__ import annotations
 
 import contextlib
@@ -19,6 +20,18 @@ SMOKE_ONE = ["eval", "--routes", "town12_smoke", "--routes-subset", "0", "--agen
              "--workers", "1"]
 SMOKE_TWO = [*SMOKE_ONE[:4], "0-1", *SMOKE_ONE[5:]]
 ENV = {**os.environ, "PYTHONPATH": str(ROOT)}
+
+
+def one_smoke_route(folder: Path, route_id: str = "3", name: str | None = None) -> Path:
+    """FOLDER/<name>.xml (default smoke<id>): scenarios/town12_smoke.xml with route
+    ``route_id`` only."""
+    import re
+    text = (ROOT / "scenarios" / "town12_smoke.xml").read_text()
+    head, rest = text.split("\n", 2)[:2], text.split("\n", 2)[2]
+    route = re.search(rf'  <route id="{route_id}" .*?</route>\n', rest, re.S)[0]
+    path = folder / f"{name or f'smoke{route_id}'}.xml"
+    path.write_text("\n".join(head) + "\n" + route + "</routes>\n")
+    return path
 
 
 def _cli(argv: list[str]) -> tuple[int, str]:

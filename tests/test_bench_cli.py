@@ -118,11 +118,12 @@ def test_one_arm_and_seed_is_trained_evaluated_and_set_beside_the_reproduce_runs
     and Fixed-IMM teachers, a validation set, the shipped SC-IMM student as the run's own
     seed-0 student): it trains both arms' students side by side with the default recipe, times
     that and each evaluation, and scores the SC-IMM one and the run's own on the validation
-    routes (here town12_smoke for every set, to stay short)."""
+    routes (here one smoke route for every set, to stay short)."""
     import shutil
 
     from model.agent import SHIPPED
     from sumo_scimm.bench.figures import arm_seed_figure
+    from tests.run_folder_helpers import one_smoke_route
     from tests.test_model import fake_dataset, write_teacher
     from tests.test_train import fake_val
     data = tmp_path / "rep" / "data"
@@ -135,9 +136,10 @@ def test_one_arm_and_seed_is_trained_evaluated_and_set_beside_the_reproduce_runs
     before.mkdir(parents=True)
     shutil.copy(SHIPPED / "scimm" / "student.pt", before / "student.pt")
     (before / "history.json").write_text(json.dumps({"chosen_val": {"loss": 9.5}}))
-    r = arm_seed_figure(str(tmp_path / "rep"), 2, routes="town12_smoke", val_routes="town12_smoke")
+    one = str(one_smoke_route(tmp_path))
+    r = arm_seed_figure(str(tmp_path / "rep"), 2, routes=one, val_routes=one)
     assert (r["arm"], r["arms"], r["seed"], r["arm_routes"], r["arm_workers"]) == (
-        "scimm", ["scimm", "fixed"], 0, "town12_smoke", 2)
+        "scimm", ["scimm", "fixed"], 0, one, 2)
     assert r["arm_seed_s"] == pytest.approx((r["arm_train_s"] + sum(r["arm_eval_s"])) / 2, abs=0.11)
     assert r["arm_train_s"] > 0 and min(r["arm_eval_s"]) > 0 and len(r["arm_eval_s"]) == 2
     assert r["arm_seed_target_s"] == 300.0

@@ -1,6 +1,6 @@
 """``sumo-scimm reproduce`` end to end on the four town12_smoke routes (collect, the three
 teachers, three students for one epoch, their closed-loop evaluations in real libsumo on the
-evaluation set and on a second set, Tables 2-4 against both references, the claims, the
+evaluation set and on a second set (one of those routes), Tables 2-4 against both references, the claims, the
 ranking and the figures), its resume, a later part adding a seed (``--seeds 1-1``) whose
 tables pool both seeds, and its refusals of bad input."""
 from __future__ import annotations
@@ -11,6 +11,7 @@ import json
 import pytest
 
 from sumo_scimm.cli import main
+from tests.run_folder_helpers import one_smoke_route
 
 SMOKE = ["--train-routes", "town12_smoke", "--val-routes", "town12_smoke", "--eval-routes", "town12_smoke"]
 
@@ -19,8 +20,11 @@ SMOKE = ["--train-routes", "town12_smoke", "--val-routes", "town12_smoke", "--ev
 def test_reproduce_runs_every_stage_and_resumes_without_redoing_them(tmp_path, capsys):
     arms = ["baseline", "control", "scimm"]  # both references and a teacher arm
     out = tmp_path / "rep"
+    # the second set: smoke route 3 alone, in a file whose stem (the set's label) is town12_smoke
+    (tmp_path / "second").mkdir()
+    second = one_smoke_route(tmp_path / "second", "3", "town12_smoke")
     argv = ["reproduce", "--seeds", "1", "--workers", "2", "--epochs", "1", "--out", str(out), *SMOKE,
-            "--arms", ",".join(reversed(arms)), "--second-routes", "town12_smoke"]
+            "--arms", ",".join(reversed(arms)), "--second-routes", str(second)]
     assert main(argv) == 0
     stages = json.loads((out / "stages.json").read_text())
     assert "train 3 students s0-0" in stages  # side by side, one stage
@@ -28,9 +32,9 @@ def test_reproduce_runs_every_stage_and_resumes_without_redoing_them(tmp_path, c
         assert f"eval {arm} s0" in stages
         assert f"eval {arm} s0 on town12_smoke" in stages
         assert (out / "models" / f"{arm}_s0" / "student.pt").is_file()
-        for run in (out / "runs" / f"{arm}_s0", out / "runs" / "town12_smoke" / f"{arm}_s0"):
+        for run, n in ((out / "runs" / f"{arm}_s0", 4), (out / "runs" / "town12_smoke" / f"{arm}_s0", 1)):
             with open(run / "records.csv", newline="") as f:
-                assert len(list(csv.DictReader(f))) == 4  # one record per smoke route
+                assert len(list(csv.DictReader(f))) == n  # one record per route of the set
     assert not (out / "models" / "fixed_s0").exists(), "an arm left out of --arms is not trained"
     for tables in (out / "tables", out / "tables" / "town12_smoke"):
         rows = list(csv.DictReader(open(tables / "table3.csv")))

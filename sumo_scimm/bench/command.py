@@ -152,7 +152,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                     help="also time one arm and seed now, as reproduce runs it (the SC-IMM and Fixed-IMM students of "
                          "seed 0 trained side by side on the data of 'sumo-scimm reproduce --out DIR', then each on "
                          "town12_short on --workers: the time over two; then, not timed, the SC-IMM one and the "
-                         "reproduce run's on val; about 10 min timed and 3 min untimed)")
+                         "reproduce run's on val; about 12 min timed and 3 min untimed)")
     bn.add_argument("--replay", metavar="DIR",
                     help="also time 'sumo-scimm replay' of the eval run DIR (its every route) with three of the "
                          "shipped students (baseline, fixed, scimm) on --workers (docs/design.md §11: an expert run of "

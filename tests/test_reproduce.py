@@ -1,8 +1,8 @@
 """``sumo-scimm reproduce`` end to end on the four town12_smoke routes (collect, the three
 teachers, three students for one epoch, their closed-loop evaluations in real libsumo on the
-evaluation set and on a second set (one of those routes), Tables 2-4 against both references, the claims, the
-ranking and the figures), its resume, a later part adding a seed (``--seeds 1-1``) whose
-tables pool both seeds, and its refusals of bad input."""
+evaluation set and on a second set (one of those routes), Tables 2-4 against both
+references, the claims, the ranking and the figures), its resume, a later part adding a
+seed (``--seeds 1-1``) whose tables pool both seeds, and its refusals of bad input."""
 from __future__ import annotations
 
 import csv

@@ -49,7 +49,7 @@ def train_side_by_side(cfgs: list[TrainConfig], processes: int = SIDE_BY_SIDE) -
         Path(c.out).mkdir(parents=True, exist_ok=True)
     ctx = mp.get_context("spawn")
     steps = ctx.Value("q", 0)
-    total = sum(c.epochs * c.epoch_steps if c.max_steps is None else c.max_steps for c in cfgs) \
+    total = sum(min(c.epochs * c.epoch_steps, c.max_steps or c.epochs * c.epoch_steps) for c in cfgs) \
         if all(c.epoch_steps for c in cfgs) else None  # 0 = the whole draw: not known before loading
     bar = tqdm(total=total, desc=f"train {len(cfgs)} students, {processes} at a time", unit="step", disable=None)
     with ctx.Pool(min(processes, len(cfgs)), initializer=_init, initargs=(steps,)) as pool:
@@ -71,11 +71,10 @@ def _build_caches(cfgs: list[TrainConfig]) -> None:
     from model.train import VIEWS
     done = set()
     for c in cfgs:
-        cache = Path(c.cache_dir) if c.cache_dir else Path(c.data) / "cache"  # as model.train.train has it
         for folder, views in [(c.data, VIEWS)] + ([(c.val, 1)] if c.val else []):
-            if (key := (str(folder), str(cache), views)) not in done:
+            if (key := (str(folder), str(c.cache), views)) not in done:
                 check_dataset(Path(folder))
-                build_cache(Path(folder), cache, views)
+                build_cache(Path(folder), c.cache, views)
                 done.add(key)
 
 

@@ -166,6 +166,11 @@ class TrainConfig:
     def loss_weights(self) -> LossWeights:
         return BASELINE if self.teacher == "none" else self.weights
 
+    @property
+    def cache(self) -> Path:
+        """The BEV cache folder: ``cache_dir``, else <data>/cache."""
+        return Path(self.cache_dir) if self.cache_dir else Path(self.data) / "cache"
+
 
 def epoch_plan(data: StudentData, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """One epoch: sample order (the data balance above), view and route cut [m, 0 = none]
@@ -310,7 +315,7 @@ def train(cfg: TrainConfig, on_step: Callable[[], None] | None = None) -> Path:
     torch.set_num_threads(cfg.threads)
     rng = np.random.default_rng(cfg.seed)
     # data
-    cache_dir = Path(cfg.cache_dir) if cfg.cache_dir else Path(cfg.data) / "cache"
+    cache_dir = cfg.cache
     teacher = None if cfg.teacher == "none" else cfg.teacher
     data = StudentData.load(cfg.data, cache_dir, VIEWS, teacher)
     val = StudentData.load(cfg.val, cache_dir, 1) if cfg.val else None

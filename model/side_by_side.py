@@ -23,7 +23,7 @@ from __future__ import annotations
 import multiprocessing as mp
 import signal
 import sys
-import time
+from time import sleep
 import traceback
 from dataclasses import replace
 from pathlib import Path
@@ -35,7 +35,8 @@ from model.train import TrainConfig
 SIDE_BY_SIDE = 2  # trainings at once (one per core of a 2-core machine)
 THREADS_EACH = 1  # torch threads of each
 LOG_NAME = "train.log"  # a training's own output, in its output folder
-_steps = None  # the shared step counter, in a training process
+_steps = None  # the shared step counts (one slot per training), in a training process
+_slot = -1  # the slot of the training this process runs
 
 
 def train_side_by_side(cfgs: list[TrainConfig], processes: int = SIDE_BY_SIDE) -> list[Path]:
@@ -48,18 +49,28 @@ def train_side_by_side(cfgs: list[TrainConfig], processes: int = SIDE_BY_SIDE) -
     for c in cfgs:
         Path(c.out).mkdir(parents=True, exist_ok=True)
     ctx = mp.get_context("spawn")
-    steps = ctx.Value("q", 0)
+    # one count per training, each written by its own training only: no lock is needed, and
+    # a lock would be a named semaphore that Python's resource tracker may report as leaked
+    # when the pool's processes end
+    steps = ctx.RawArray("q", len(cfgs))
     total = sum(min(c.epochs * c.epoch_steps, c.max_steps or c.epochs * c.epoch_steps) for c in cfgs) \
         if all(c.epoch_steps for c in cfgs) else None  # 0 = the whole draw: not known before loading
     bar = tqdm(total=total, desc=f"train {len(cfgs)} students, {processes} at a time", unit="step", disable=None)
-    with ctx.Pool(min(processes, len(cfgs)), initializer=_init, initargs=(steps,)) as pool:
-        pending = [pool.apply_async(_train_one, (c,)) for c in cfgs]
+    pool = ctx.Pool(min(processes, len(cfgs)), initializer=_init, initargs=(steps,))
+    try:
+        pending = [pool.apply_async(_train_one, (i, c)) for i, c in enumerate(cfgs)]
         while not all(p.ready() for p in pending):
-            time.sleep(0.5)
-            bar.update(steps.value - bar.n)
-        bar.update(steps.value - bar.n)
+            sleep(0.5)
+            bar.update(sum(steps) - bar.n)
+        bar.update(sum(steps) - bar.n)
         bar.close()
-        return [p.get() for p in pending]  # the first failure raised, in the order of cfgs
+    except BaseException:  # a stop (Ctrl-C, SIGTERM): end the trainings now
+        pool.terminate()
+        pool.join()
+        raise
+    pool.close()  # every training has ended: the processes exit on their own
+    pool.join()
+    return [p.get() for p in pending]  # the first failure raised, in the order of cfgs
 
 
 def _build_caches(cfgs: list[TrainConfig]) -> None:
@@ -85,12 +96,13 @@ def _init(steps) -> None:
 
 
 def _count_step() -> None:
-    with _steps.get_lock():
-        _steps.value += 1
+    _steps[_slot] += 1
 
 
-def _train_one(cfg: TrainConfig) -> Path:
+def _train_one(slot: int, cfg: TrainConfig) -> Path:
+    global _slot
     from model.train import train
+    _slot = slot
     with open(Path(cfg.out) / LOG_NAME, "w", buffering=1) as log:  # line by line, to follow it
         sys.stdout = sys.stderr = log  # tqdm sees no terminal: its bar is off; epoch lines go here
         try:

@@ -51,10 +51,15 @@ def test_bench_prints_and_writes_every_figure_beside_its_reference(tmp_path, cap
     assert abs(loop["sumo_and_network_alternating_ms"] - floor) <= 0.0015 + 0.0005 * call
     ratio = floor / (loop["bare_libsumo_step_ms"] + loop["network_share"] * loop["bare_inference_ms"])
     assert abs(loop["floor_over_bare_plus_inference"] - ratio) <= 0.005 * ratio + 0.005
+    # for reading: the same replay with a memory read between steps instead of the network,
+    # its traffic checked with the others (replay_same_traffic above)
+    sweep = loop["bare_libsumo_memory_sweep_ms"]
+    assert math.isfinite(sweep) and sweep > 0
+    assert "MB memory read between steps" in printed
     # the references are timed route by route, right after each episode; the figures are the routes' means
     per = loop["per_route"]
     assert (len(per["harness_step_ms"]) == len(per["bare_libsumo_step_ms"]) == len(per["bare_inference_ms"])
-            == len(per["bare_libsumo_network_between_ms"]) == 1)
+            == len(per["bare_libsumo_network_between_ms"]) == len(per["bare_libsumo_memory_sweep_ms"]) == 1)
     assert abs(loop["bare_inference_ms"] - per["bare_inference_ms"][0]) <= 0.001
     # --rounds (3 by default): the figures are those of the median round by the ratio, taken
     # whole (its own figures, never mixed with another round's); every round is kept

@@ -4,6 +4,7 @@ same trainings run alone in this process."""
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 
 import pytest
 import torch
@@ -20,14 +21,36 @@ def _cfg(train_dir, val_dir, out, **kw) -> TrainConfig:
                        epoch_steps=3, **kw)
 
 
-def test_students_side_by_side_have_the_weights_of_one_thread_trainings_alone(sets, tmp_path):  # noqa: F811
+class _Bar:
+    """Stands in for tqdm: records the progress counted."""
+
+    n, total = 0, None
+
+    def __init__(self, total=None, **_):
+        _Bar.n, _Bar.total = 0, total
+
+    def update(self, k):
+        _Bar.n += k
+        self.n = _Bar.n
+
+    def close(self):
+        pass
+
+
+def test_students_side_by_side_have_the_weights_of_one_thread_trainings_alone(sets, tmp_path,  # noqa: F811
+                                                                               monkeypatch):
     """Three trainings, two at a time (one waits for a free process): each checkpoint equals
     weight for weight the same config trained alone here on THREADS_EACH thread, in the
-    order given; each writes its epoch lines to its train.log."""
+    order given; each writes its epoch lines to its train.log; the progress bar counts
+    every step of every training."""
+    import model.side_by_side as sbs
+    monkeypatch.setattr(sbs, "tqdm", _Bar)
     train_dir, val_dir = sets
     cfgs = [_cfg(train_dir, val_dir, tmp_path / "side" / name, teacher=teacher, seed=seed)
             for name, teacher, seed in (("a", "scimm", 0), ("b", "none", 1), ("c", "control", 0))]
     ckpts = train_side_by_side(cfgs, processes=2)
+    # 2 epochs of 2 steps each (two whole batches of 256 frames), 3 trainings
+    assert _Bar.n == 12 and _Bar.total == 18  # the total is epochs x epoch_steps; this small set runs fewer
     assert ckpts == [c.out / "student.pt" for c in cfgs]
     torch_threads = torch.get_num_threads()
     try:
@@ -62,3 +85,23 @@ def test_a_failing_training_raises_its_error_after_the_others_finish(sets, tmp_p
 
 def test_nothing_to_train_starts_no_process():
     assert train_side_by_side([]) == []
+
+
+def test_a_stop_while_training_ends_every_training_process(sets, tmp_path, monkeypatch):  # noqa: F811
+    """A Ctrl-C (or the SIGTERM the CLI turns into an exception) reaching the parent while it
+    waits: the exception goes on to the caller, the training processes are ended at once
+    (no student saved, no process left)."""
+    import multiprocessing as mp
+
+    import model.side_by_side as sbs
+    train_dir, val_dir = sets
+    cfgs = [replace(_cfg(train_dir, val_dir, tmp_path / name), epochs=50) for name in ("a", "b")]
+
+    def stop(_seconds):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(sbs, "sleep", stop)  # the parent's wait between polls
+    with pytest.raises(KeyboardInterrupt):
+        train_side_by_side(cfgs, processes=2)
+    assert mp.active_children() == []
+    assert not any((c.out / "student.pt").exists() for c in cfgs)

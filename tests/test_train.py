@@ -182,6 +182,26 @@ def test_early_stopping_is_deterministic_for_a_seed(sets, tmp_path):
     assert [r["val"] for r in ma["history"]] == [r["val"] for r in mb["history"]]
 
 
+def test_the_nan_fill_of_new_tensors_changes_no_weight(sets, tmp_path, monkeypatch):
+    """Training runs with torch's NaN fill of new tensors off (model.train.FILL_UNINITIALIZED):
+    a kernel reading memory it never wrote would make the two trainings differ (NaN in one,
+    old data in the other); they are equal bit for bit, validation losses included."""
+    import model.train as train_mod
+    train_dir, val_dir = sets
+    kw = dict(val=val_dir, teacher="scimm", epochs=2, seed=4)
+    a, ma = load_checkpoint(_train(train_dir, tmp_path / "off", **kw))
+    before = torch.utils.deterministic.fill_uninitialized_memory
+    monkeypatch.setattr(train_mod, "FILL_UNINITIALIZED", True)
+    try:
+        b, mb = load_checkpoint(_train(train_dir, tmp_path / "on", **kw))
+        assert torch.utils.deterministic.fill_uninitialized_memory is True  # the setting took
+    finally:
+        torch.utils.deterministic.fill_uninitialized_memory = before
+    for (k, va), vb in zip(a.state_dict().items(), b.state_dict().values()):
+        torch.testing.assert_close(va, vb, rtol=0, atol=0, msg=k)
+    assert [r["val"] for r in ma["history"]] == [r["val"] for r in mb["history"]]
+
+
 # --- weight average -----------------------------------------------------------------------------
 def test_the_weight_average_follows_its_warm_up_formula():
     """decay 0.9, weights 0 at the start, then 1, 1, 3 after steps 0, 1, 2: d = min(0.9,

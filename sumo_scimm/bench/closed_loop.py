@@ -28,6 +28,10 @@ measured in the same run (docs/design.md §11). Never a timed test: numbers to r
   (the replay runs the network before every step, the loop on its share of ticks, so
   SUMO's part of the floor is for the network on every tick: the true floor may sit a
   little lower);
+- bare libsumo step with a memory sweep between steps (a learned agent, for reading): the
+  same replay with a read of SWEEP_BYTES (4 MB, twice this CPU's 2 MB L2 cache per core)
+  between steps, no network: what cooling the caches alone costs SUMO's step, beside what
+  the network between steps costs it;
 - rounds: the figures above are timed in ``rounds`` whole passes over the routes and
   reported from the median pass by the overhead ratio, with every pass's figures beside
   it (on a shared host one pass can move the ratio by up to a fifth between runs);
@@ -58,6 +62,14 @@ from scenarios.routefile import Route, read_routes
 from sumo_nets import load_net
 
 SAMPLE_EVERY = 50  # ticks between the frames kept for the BEV and inference figures
+SWEEP_BYTES = 4 << 20  # the memory read between steps in the cache-sweep replay [bytes]
+
+
+def _memory_sweep(n_bytes: int = SWEEP_BYTES) -> Callable[[], object]:
+    """A call that reads ``n_bytes`` of memory (a float64 sum): it evicts what SUMO's step
+    left in caches smaller than that and does little else."""
+    block = np.ones(n_bytes // 8)
+    return block.sum
 
 
 def _bare_step_ms(route: Route, seed: int, log: EpisodeLog,
@@ -145,7 +157,7 @@ def run_bench(routes_name: str = "town12_smoke", n_routes: int = 4, bev_frames: 
 # what ``rounds`` keeps of each round
 _ROUND_KEYS = ("harness_step_ms", "bare_libsumo_step_ms", "bare_inference_ms", "network_share",
                "harness_over_bare", "harness_over_bare_plus_inference", "sumo_and_network_alternating_ms",
-               "floor_over_bare_plus_inference")
+               "floor_over_bare_plus_inference", "bare_libsumo_memory_sweep_ms")
 
 
 def _round(routes: list[Route], label: str, agent: str, agent_config: str | None,
@@ -189,6 +201,10 @@ def _round(routes: list[Route], label: str, agent: str, agent_config: str | None
             out["per_route"]["network_between_call_ms"] = [round(v, 3) for v in between_net_ms]
             out["sumo_and_network_alternating_ms"] = round(bn + share * nn, 3)
             out["floor_over_bare_plus_inference"] = round((bn + share * nn) / (b + share * out["bare_inference_ms"]), 2)
+        sweep_ms = col("bare_libsumo_memory_sweep_ms")
+        if sweep_ms:
+            out["bare_libsumo_memory_sweep_ms"] = round(float(np.mean(sweep_ms)), 3)
+            out["per_route"]["bare_libsumo_memory_sweep_ms"] = [round(v, 3) for v in sweep_ms]
     return out
 
 
@@ -231,6 +247,9 @@ def _time_route(route: Route, seed: int, agent: str, agent_config: str | None,
     if network_between is not None and inputs:
         ms, ok, net_ms = _bare_step_ms(route, seed, res.log, between=network_between(inputs))
         out["bare_libsumo_network_between_ms"], out["network_between_call_ms"] = ms, net_ms
+        out["same"].append(ok)
+        ms, ok, _ = _bare_step_ms(route, seed, res.log, between=_memory_sweep())
+        out["bare_libsumo_memory_sweep_ms"] = ms
         out["same"].append(ok)
     return out
 

@@ -17,7 +17,7 @@ from sumo_scimm.options import add_vehicle_option
 
 def _print_loop(loop: dict) -> None:
     """The closed-loop figures: the harness step against bare libsumo (+ the network)."""
-    from sumo_scimm.bench.closed_loop import format_bench
+    from sumo_scimm.bench.closed_loop import SWEEP_BYTES, format_bench
     infer = loop.setdefault("bare_inference_ms", 0.0)  # 0 for a rule-based agent
     share = loop.setdefault("network_share", 0.0)
     loop.setdefault("harness_over_bare_plus_inference", loop["harness_over_bare"])
@@ -35,6 +35,11 @@ def _print_loop(loop: dict) -> None:
         print(f"  for reading: SUMO and the network alternating, nothing else "
               f"{loop['sumo_and_network_alternating_ms']:.3f} ms/tick (network {loop['network_between_call_ms']:.2f} ms "
               f"a call); over (bare + inference) {loop['floor_over_bare_plus_inference']:.2f} x: the floor of the ratio")
+    if "bare_libsumo_memory_sweep_ms" in loop:  # for reading: what cooling the caches alone costs SUMO
+        sweep, bare = loop["bare_libsumo_memory_sweep_ms"], loop["bare_libsumo_step_ms"]
+        print(f"  for reading: bare libsumo step with a {SWEEP_BYTES >> 20} MB memory read between steps, no network "
+              f"{sweep:.3f} ms/tick ({sweep / bare:.2f} x bare; with the network between steps "
+              f"{loop['bare_libsumo_network_between_ms'] / bare:.2f} x)")
 
 
 def _print_memory(label: str, e: dict) -> None:

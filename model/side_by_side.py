@@ -23,10 +23,10 @@ from __future__ import annotations
 import multiprocessing as mp
 import signal
 import sys
-from time import sleep
 import traceback
 from dataclasses import replace
 from pathlib import Path
+from time import sleep
 
 from tqdm import tqdm
 

@@ -29,9 +29,9 @@ measured in the same run (docs/design.md §11). Never a timed test: numbers to r
   SUMO's part of the floor is for the network on every tick: the true floor may sit a
   little lower);
 - bare libsumo step with a memory sweep between steps (a learned agent, for reading): the
-  same replay with a read of SWEEP_BYTES (4 MB, twice this CPU's 2 MB L2 cache per core)
-  between steps, no network: what cooling the caches alone costs SUMO's step, beside what
-  the network between steps costs it;
+  same replay with a read of SWEEP_BYTES between steps (4 MB, twice the 2 MB per-core L2
+  cache of a recent Intel Xeon), no network: what cooling the caches alone costs SUMO's
+  step, beside what the network between steps costs it;
 - rounds: the figures above are timed in ``rounds`` whole passes over the routes and
   reported from the median pass by the overhead ratio, with every pass's figures beside
   it (on a shared host one pass can move the ratio by up to a fifth between runs);

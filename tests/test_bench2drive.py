@@ -143,6 +143,19 @@ def _oracle_smoothness(info: dict) -> float:
     return sum(ok) / len(ok)
 
 
+@pytest.mark.parametrize("deriv", [0, 1])
+def test_the_savitzky_golay_matrix_is_scipys_filter(deriv):
+    """The matrix of every length from 3 samples (the window shrinks below 7, even lengths
+    included) to 40 is scipy's savgol_filter of the unit vectors, to float64 rounding (entries
+    up to 10 per second for the derivative; 3.6e-14 apart at most)."""
+    from scipy.signal import savgol_filter
+
+    from harness.scoring.bench2drive import _savgol_matrix
+    for n in range(3, 41):
+        ref = savgol_filter(np.eye(n), min(7, n), 2, deriv=deriv, delta=0.1, axis=0)
+        np.testing.assert_allclose(_savgol_matrix(n, deriv), ref, rtol=0, atol=1e-12, err_msg=str(n))
+
+
 def test_smoothness_of_every_chunk_at_once_equals_the_chunk_by_chunk_filter():
     # 200 seeded drives of 21-400 ticks whose speed and heading wander at random (up to
     # 0.06 m/s and 0.0008 rad a tick), about half of their chunks comfortable: the chunks

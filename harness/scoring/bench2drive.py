@@ -129,10 +129,21 @@ def _unwrap(h: np.ndarray) -> np.ndarray:
 @functools.lru_cache(maxsize=None)
 def _savgol_matrix(n: int, deriv: int) -> np.ndarray:
     """(n, n) matrix S with S @ x = scipy's savgol_filter(x, min(WINDOW, n), ORDER, deriv,
-    delta=DELTA) for any x of n samples: the filter (mode 'interp', the default Bench2Drive
-    keeps) is linear in x, so its columns are the filter of the unit vectors."""
-    from scipy.signal import savgol_filter
-    return savgol_filter(np.eye(n), min(WINDOW, n), ORDER, deriv=deriv, delta=DELTA, axis=0)
+    delta=DELTA) for any x of n samples (mode 'interp', the default Bench2Drive keeps;
+    tests/test_bench2drive.py holds the two equal to 1e-12).
+
+    Row i is the least-squares polynomial of degree ORDER through a window of w = min(WINDOW,
+    n) samples, its deriv-th derivative read at sample i, per DELTA**deriv: the window
+    centred on i, or, within w // 2 samples of an end, the first or last w samples (the
+    'interp' edges). Written out in numpy: importing scipy.signal costs a worker 0.6 s."""
+    w, half = min(WINDOW, n), min(WINDOW, n) // 2
+    S = np.zeros((n, n))
+    for i in range(n):
+        start = 0 if i < half else n - w if i >= n - half else i - half
+        t = np.arange(start, start + w) - i  # sample offsets from i
+        fit = np.linalg.pinv(np.vander(t, ORDER + 1, increasing=True))  # (ORDER + 1, w): x -> coefficients
+        S[i, start:start + w] = fit[deriv] * math.factorial(deriv) / DELTA ** deriv
+    return S
 
 
 def _all_inside(x: np.ndarray, lo: float, hi: float) -> np.ndarray:

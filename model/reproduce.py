@@ -17,7 +17,8 @@ thread each, printed as ``sumo-scimm train ... --threads 1`` commands, each of w
 the same student alone); a long run in parts (``--seeds 0-1``, ``--seeds 2-3``, ...) shows
 tables after each part. Stage wall times go to ``OUT/stages.json``; the tables
 to ``OUT/tables`` (the second set's to ``OUT/tables/<set>``, model.arm_tables), figures and
-a summary to ``OUT/README.md``.
+a summary to ``OUT/README.md``; what a repository keeps of the run to ``OUT/records``
+(model.run_records), from which a part on another machine takes the earlier parts' seeds.
 """
 from __future__ import annotations
 
@@ -34,6 +35,7 @@ import pandas as pd
 from files.atomic import write_atomic
 from harness.common.errors import BadInput
 from harness.runs.evaluate import Backend
+from model.run_records import archive_records, restore_records
 
 # (arm, teacher of `sumo-scimm train`): the baseline (expert labels only), the loss-matched
 # control (the expert's own labels given the teacher terms' weight, a constant mode target),
@@ -139,6 +141,9 @@ def reproduce(out: Path, seeds: int | range, repetitions: int, epochs: int | Non
         except BadInput as exc:
             raise BadInput(f"arm {arm!r}: {exc} (leave it out with --arms)") from None
     out.mkdir(parents=True, exist_ok=True)
+    label2 = None if second is None else Path(second).stem
+    folders = {Path(sets[2]).stem: out / "runs", **({label2: out / "runs" / label2} if label2 else {})}
+    restore_records(out, folders, seeds)  # the seeds of earlier parts, from their committed records
     st = Stages(out)
     train_dir, val_dir = out / "data" / "train", out / "data" / "val"
     _collect(st, sets, train_dir, val_dir, repetitions, backend, vehicle)
@@ -147,7 +152,6 @@ def reproduce(out: Path, seeds: int | range, repetitions: int, epochs: int | Non
         if not is_complete(train_dir, method):
             st.run(f"teacher {method}", f"teacher --data {train_dir} --method {method}",
                    lambda method=method: make_teachers(train_dir, episodes, (method,)))
-    label2 = None if second is None else Path(second).stem
     ckpts = _train(st, out, arms, teacher, seeds, epochs, train_dir, val_dir)
     for seed in seeds:
         for arm in arms:
@@ -267,33 +271,6 @@ def _tables_and_summary(out: Path, st: Stages, seeds: list[int], train_dir: Path
     return text
 
 
-ARCHIVED = ("records.csv", "results.json")  # what ``report`` reads of a run folder (harness.scoring.report)
-
-
-def archive_records(out: Path, runs: dict[str, dict[str, list[Path]]]) -> None:
-    """``OUT/records``: what rebuilds the tables of Tables 3-4 and the claims, small enough to
-    keep in a repository: ``<set>/<arm>_s<seed>/{records.csv,results.json}.gz`` of every
-    evaluation in ``runs`` ({set: {arm: run folders}}; files.compressed, byte-identical for
-    identical records), ``models/<arm>_s<seed>.json``, each student's manifest, and
-    ``stages.json``, the stage wall times. ``sumo-scimm report ARM=OUT/records/SET/ARM_s0,...
-    ...`` reads them as they are."""
-    from files.compressed import gzip_copy
-    dest = out / "records"
-    dest.mkdir(exist_ok=True)
-    if (out / "stages.json").is_file():
-        shutil.copyfile(out / "stages.json", dest / "stages.json")
-    for route_set, arms in runs.items():
-        for folders in arms.values():
-            for run in folders:
-                (dest / route_set / run.name).mkdir(parents=True, exist_ok=True)
-                for name in ARCHIVED:
-                    gzip_copy(run / name, dest / route_set / run.name / f"{name}.gz")
-                manifest = out / "models" / run.name / "manifest.json"
-                if manifest.is_file():
-                    (dest / "models").mkdir(parents=True, exist_ok=True)
-                    shutil.copyfile(manifest, dest / "models" / f"{run.name}.json")
-
-
 def _figures(out: Path, train_dir: Path, runs: dict[str, list[Path]], seeds: list[int], st: Stages) -> list[str]:
     """Fig. 4 on the first episode with an obstacle bypass (Avoidance and Recovery show
     there), Fig. 5 on the route where the reference arm's (the first arm's) first seed's path
@@ -308,10 +285,14 @@ def _figures(out: Path, train_dir: Path, runs: dict[str, list[Path]], seeds: lis
            lambda: plot_posterior(train_dir / "episodes" / f"{episode}.npz", fig4, method="scimm"))
     figs = [f"![Fig. 4, episode {episode}]({fig4.name})"]
     first, other = next(iter(runs)), ("scimm" if "scimm" in runs else list(runs)[-1])
-    if other != first:
-        base = pd.read_csv(runs[first][0] / "records.csv")
+    # Fig. 5 needs the routes' logs: the first seed whose two runs ran here (not restored)
+    pair = next(((a, b) for a in runs[first] for b in runs[other]
+                 if a.name[len(first):] == b.name[len(other):] and (a / "records.csv").is_file()
+                 and (b / "records.csv").is_file()), None)
+    if other != first and pair is not None:
+        base = pd.read_csv(pair[0] / "records.csv")
         key = str(base.loc[base["curvature_variation"].idxmax(), "key"])
-        fig5 = waypoint_overlay({first: runs[first][0], other: runs[other][0]}, key, out / "fig5_waypoint_overlay.png")
+        fig5 = waypoint_overlay({first: pair[0], other: pair[1]}, key, out / "fig5_waypoint_overlay.png")
         figs.append(f"![Fig. 5, route {key}]({fig5.name})")
     from model.curves import plot_loss_curves
     for seed in seeds:

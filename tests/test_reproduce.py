@@ -2,11 +2,13 @@
 teachers, three students for one epoch, their closed-loop evaluations in real libsumo on the
 evaluation set and on a second set (one of those routes), Tables 2-4 against both
 references, the claims, the ranking and the figures), its resume, a later part adding a
-seed (``--seeds 1-1``) whose tables pool both seeds, and its refusals of bad input."""
+seed (``--seeds 1-1``) whose tables pool both seeds, a third part in an empty folder given
+only the earlier parts' records, and its refusals of bad input."""
 from __future__ import annotations
 
 import csv
 import json
+import shutil
 
 import pytest
 
@@ -80,6 +82,21 @@ def test_reproduce_runs_every_stage_and_resumes_without_redoing_them(tmp_path, c
     rows = {r["arm"]: r for r in csv.DictReader(open(out / "tables" / "table3.csv"))}
     assert (rows["baseline"]["runs"], rows["scimm"]["runs"], rows["scimm"]["DS seeds"]) == ("2", "2", "2")
     assert "(2 seeds: seeds 0, 1; arms baseline, scimm)" in (out / "README.md").read_text()
+    # a third part on another machine: an empty folder given only the records of the first
+    # two (as a repository keeps them) collects again, runs seed 2 and pools seeds 0-2
+    other = tmp_path / "other"
+    shutil.copytree(out / "records", other / "records")
+    assert main(["reproduce", "--seeds", "2-2", "--workers", "2", "--epochs", "1", "--out", str(other), *SMOKE,
+                 "--arms", "baseline,scimm", "--second-routes", "none"]) == 0
+    assert not (other / "models" / "scimm_s0" / "student.pt").exists(), "an earlier seed is not trained again"
+    rows = {r["arm"]: r for r in csv.DictReader(open(other / "tables" / "table3.csv"))}
+    assert (rows["baseline"]["runs"], rows["scimm"]["runs"], rows["scimm"]["DS seeds"]) == ("3", "3", "3")
+    assert "(3 seeds: seeds 0, 1, 2; arms baseline, scimm)" in (other / "README.md").read_text()
+    assert (other / "fig5_waypoint_overlay.png").is_file(), "Fig. 5 drawn from the seed run here"
+    for seed in range(3):
+        assert (other / "records" / "town12_smoke" / f"scimm_s{seed}" / "records.csv.gz").is_file()
+        assert (other / "records" / "replay" / f"s{seed}.md").is_file()
+    assert (other / "records" / "data" / "train.run.jsonc").is_file()
 
 
 @pytest.mark.parametrize("extra, message", [

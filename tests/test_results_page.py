@@ -41,7 +41,7 @@ def _arms(route_set: Path) -> list[str]:
 @pytest.fixture(scope="module")
 def rebuilt(tmp_path_factory) -> dict[str, Path]:
     """{evaluation set: the folder ``sumo-scimm report`` wrote from its committed records}."""
-    sets = sorted(d for d in RECORDS.iterdir() if d.is_dir() and d.name != "models")
+    sets = sorted(d for d in RECORDS.iterdir() if d.is_dir() and d.name not in ("models", "replay", "data"))
     assert sets, f"no committed records under {RECORDS}"
     out = {}
     for route_set in sets:

@@ -138,7 +138,7 @@ def reproduce_figure(folder: str) -> dict:
     # "scimm s0" -> its training (or its share of a stage side by side) + its evaluation on the
     # main set [s], for every arm and seed with a training (an expert's evaluation has none)
     keys = dict.fromkeys((m[1], int(m[2])) for name in times
-                         if (m := re.fullmatch(r"(?:train|eval) (\S+) s(\d+)", name)))
+                         if (m := re.fullmatch(r"(?:train|eval) (\S+) s(\d+)", name)) and m[1] != "expert")
     arm_seeds = {f"{arm} s{seed}": t + times.get(f"eval {arm} s{seed}", 0.0)
                  for arm, seed in keys if (t := train_seconds(times, arm, seed)) is not None}
     return {"reproduce_dir": str(folder), "reproduce_wall_s": round(total, 1), "stages": len(times),

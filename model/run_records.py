@@ -76,26 +76,31 @@ def restore_records(out: Path, run_folders: dict[str, Path], skip_seeds: range) 
     if not src.is_dir():
         return []
     _copy_new(src / "stages.json", out / "stages.json")
+
+    def earlier(path: Path) -> bool:  # an entry of a seed of an earlier part
+        return _seed(path) is not None and _seed(path) not in skip_seeds
+
     restored = []
     for label, folder in run_folders.items():
-        for saved in sorted(p for p in (src / label).glob("*_s*") if p.is_dir()):
-            m = re.fullmatch(r"(.+)_s(\d+)", saved.name)
-            if m is None or int(m[2]) in skip_seeds or not all((saved / f"{n}.gz").is_file() for n in ARCHIVED):
-                continue
+        for saved in sorted(p for p in (src / label).glob("*_s*") if p.is_dir() and earlier(p)):
             run = folder / saved.name
-            if any(stored(run / n) for n in ARCHIVED):
-                continue  # a run folder of this machine's: kept as it is
+            if not all((saved / f"{n}.gz").is_file() for n in ARCHIVED) or any(stored(run / n) for n in ARCHIVED):
+                continue  # an incomplete record, or an evaluation this output folder already holds
             for name in ARCHIVED:
                 _copy_new(saved / f"{name}.gz", run / f"{name}.gz")
             restored.append(run)
-    for manifest in sorted((src / "models").glob("*_s*.json")):
-        m = re.fullmatch(r".+_s(\d+)", manifest.stem)
-        if m and int(m[1]) not in skip_seeds:
-            _copy_new(manifest, out / "models" / manifest.stem / "manifest.json")
-    for table in sorted((src / "replay").glob("s*.md")):
-        if re.fullmatch(r"s\d+", table.stem) and int(table.stem[1:]) not in skip_seeds:
-            _copy_new(table, out / "replay" / table.stem / "table.md")
+    for manifest in filter(earlier, sorted((src / "models").glob("*_s*.json"))):
+        _copy_new(manifest, out / "models" / manifest.stem / "manifest.json")
+    for table in filter(earlier, sorted((src / "replay").glob("s*.md"))):
+        _copy_new(table, out / "replay" / table.stem / "table.md")
     return restored
+
+
+def _seed(path: Path) -> int | None:
+    """The seed a records entry is of: ``<arm>_s<seed>`` (a run folder or a manifest) or
+    ``s<seed>`` (a replay table); None for another name."""
+    m = re.fullmatch(r"(?:.+_)?s(\d+)", path.stem if path.suffix in (".json", ".md") else path.name)
+    return int(m[1]) if m else None
 
 
 def _pack(src: Path, dest: Path) -> None:
@@ -105,7 +110,7 @@ def _pack(src: Path, dest: Path) -> None:
         raise FileNotFoundError(2, "No such file (nor a .gz of it)", str(src))
     if found == src:
         gzip_copy(src, dest)
-    elif found != dest:
+    else:
         shutil.copyfile(found, dest)
 
 

@@ -59,7 +59,7 @@ def test_a_part_does_not_restore_its_own_seeds_nor_overwrite_a_run_folder(tmp_pa
     out, folders, restored = _restored(tmp_path, range(0, 1))
     assert restored == [] and not (out / "runs").exists() and not (out / "models").exists()
     assert not (out / "replay" / "s0").exists()
-    own = out / "runs" / "scimm_s0"  # a run of this machine's, plain files
+    own = out / "runs" / "scimm_s0"  # an evaluation the output folder already holds, plain files
     own.mkdir(parents=True)
     (own / "records.csv").write_text("key\n")
     (own / "results.json").write_text("{}")

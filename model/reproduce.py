@@ -35,7 +35,7 @@ import pandas as pd
 from files.atomic import write_atomic
 from harness.common.errors import BadInput
 from harness.runs.evaluate import Backend
-from model.run_records import archive_records, restore_records
+from model.run_records import archive_records, restore_records, second_label
 
 # (arm, teacher of `sumo-scimm train`): the baseline (expert labels only), the loss-matched
 # control (the expert's own labels given the teacher terms' weight, a constant mode target),
@@ -142,7 +142,8 @@ def reproduce(out: Path, seeds: int | range, repetitions: int, epochs: int | Non
             raise BadInput(f"arm {arm!r}: {exc} (leave it out with --arms)") from None
     out.mkdir(parents=True, exist_ok=True)
     label2 = None if second is None else Path(second).stem
-    folders = {Path(sets[2]).stem: out / "runs", **({label2: out / "runs" / label2} if label2 else {})}
+    folders = {Path(sets[2]).stem: out / "runs",
+               **({second_label(Path(sets[2]).stem, label2): out / "runs" / label2} if label2 else {})}
     restore_records(out, folders, seeds)  # the seeds of earlier parts, from their committed records
     st = Stages(out)
     train_dir, val_dir = out / "data" / "train", out / "data" / "val"
@@ -264,7 +265,8 @@ def _tables_and_summary(out: Path, st: Stages, seeds: list[int], train_dir: Path
         parts += ["", f"## Tables 3-4 on the second set, {label}", "", text2, "", rank]
     if replays:
         parts += ["", f"## Replay: every student fed the expert's inputs on {main}", "", *replays]
-    archive_records(out, {Path(main).stem: pooled[0], **({str(label2): pooled2[0]} if pooled2 is not None else {})})
+    second = {second_label(Path(main).stem, str(label2)): pooled2[0]} if pooled2 is not None else {}
+    archive_records(out, {Path(main).stem: pooled[0], **second})
     figs = _figures(out, train_dir, runs, seeds, st)
     text = _summary(out, seeds, st.times, "\n".join(parts), figs, list(runs), main, label2)
     (out / "README.md").write_text(text)

@@ -5,7 +5,9 @@ run rebuilds from it.
 
     <set>/<arm>_s<seed>/records.csv.gz, results.json.gz   every finished evaluation, gzip-compressed
                                                           (files.compressed: the same bytes for the
-                                                          same records)
+                                                          same records); a second evaluation
+                                                          set named as the evaluation set is
+                                                          kept as <set>_second (second_label)
     models/<arm>_s<seed>.json   each student's manifest (its training and validation data's
                                 hashes, the software's commit, the loss history)
     replay/s<seed>.md           the seed's replay table
@@ -63,6 +65,13 @@ def archive_records(out: Path, runs: dict[str, dict[str, list[Path]]]) -> Path:
             (dest / "data").mkdir(exist_ok=True)
             shutil.copyfile(config, dest / "data" / f"{name}.run.jsonc")
     return dest
+
+
+def second_label(main: str, second: str) -> str:
+    """The folder name under ``OUT/records`` of the second evaluation set, whose label is
+    ``second`` (its file's stem): the label itself, or ``<second>_second`` when it equals the
+    evaluation set's label ``main``, so neither set's records overwrite the other's."""
+    return f"{second}_second" if second == main else second
 
 
 def restore_records(out: Path, run_folders: dict[str, Path], skip_seeds: range) -> list[Path]:

@@ -1,7 +1,7 @@
 """The decisive run's committed records (docs/results/decisive, docs/preregistration.md) are
-whole and paired: every seed present has the four pre-registered arms on both evaluation
-sets, each a finished run, every student of a seed was trained on the same training and
-validation data (its manifest's hashes) with the seed it is filed under, and
+whole and paired: the seeds present are 0..n-1, each has the four pre-registered arms on
+both evaluation sets, each a finished run, every student of a seed was trained on the same
+training and validation data (its manifest's hashes) with the seed it is filed under, and
 ``sumo-scimm report`` pools them with one run per seed for every arm."""
 from __future__ import annotations
 
@@ -34,6 +34,7 @@ def test_every_seed_has_the_four_arms_on_both_sets_each_run_finished():
     assert sorted(seeds) == sorted(ARMS)
     every = seeds[ARMS[0]]
     assert every and all(s == every for s in seeds.values())
+    assert every == list(range(len(every))), "the parts run the seeds in order, from seed 0"
     for route_set in SETS:
         assert _seeds(RECORDS / route_set) == seeds
         for arm in ARMS:

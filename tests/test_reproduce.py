@@ -7,6 +7,7 @@ only the earlier parts' records, and its refusals of bad input."""
 from __future__ import annotations
 
 import csv
+import gzip
 import json
 import shutil
 
@@ -51,6 +52,10 @@ def test_reproduce_runs_every_stage_and_resumes_without_redoing_them(tmp_path, c
         assert {(r["arm"], r["against"]) for r in claims} == {("control", "baseline"), ("scimm", "baseline"),
                                                              ("scimm", "control")}
     assert "town12_smoke (second evaluation) rank" in (out / "tables" / "ranking.md").read_text()
+    # both sets' records are kept, the second set's under its own name: neither overwrites the other
+    for label, n in (("town12_smoke", 4), ("town12_smoke_second", 1)):
+        with gzip.open(out / "records" / label / "scimm_s0" / "records.csv.gz", "rt", newline="") as f:
+            assert len(list(csv.DictReader(f))) == n
     assert (out / "tables" / "table2.csv").is_file()
     assert (out / "fig4_mode_posterior.png").stat().st_size > 0
     assert (out / "fig5_waypoint_overlay.png").is_file()

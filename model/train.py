@@ -94,6 +94,7 @@ from tqdm import tqdm
 
 from files.atomic import write_atomic
 from harness.common.errors import BadInput
+from harness.runs.provenance import machine
 from model.checkpoint import HISTORY_NAME, WEIGHTS_NAME, git_commit, save_checkpoint
 from model.data import TEACHERS, StudentData
 from model.loss import BASELINE, LossWeights, total_loss
@@ -397,7 +398,7 @@ def _manifest(cfg: TrainConfig, data: StudentData, val: StudentData | None, weig
                      "aug_prob": AUG_PROB, "keep_stay": KEEP_STAY, "cut_prob": CUT_PROB},
         "final_train": history[-1]["train"], "final_val": history[-1].get("val"),
         "chosen_epoch": chosen["epoch"], "chosen_val": chosen.get("val"), "stop_reason": stop,
-        "history": history, "threads": cfg.threads,
+        "history": history, "threads": cfg.threads, "machine": machine(),
         "train_samples_per_s": history[-1]["step"] * cfg.batch / max(train_s, 1e-9), "wall_s": wall_s,
     }
 

@@ -87,3 +87,34 @@ def test_a_module_agent_is_identified_by_its_module_file(tmp_path, monkeypatch):
     assert after, "no digest after the edit"
     assert before != after
     assert "agent_module_digest" not in provenance.run_identity([Job(0, route, 0, "expert", None, 1, "")])["route_runs"][job.key]
+
+
+# two processors' blocks of /proc/cpuinfo as a 2-core KVM guest prints them (shortened)
+CPUINFO = """processor\t: 0
+vendor_id\t: AuthenticAMD
+cpu family\t: 25
+model\t\t: 17
+model name\t: AMD EPYC
+stepping\t: 1
+flags\t\t: fpu sse2 avx avx2 avx512f avx512bw
+
+processor\t: 1
+vendor_id\t: AuthenticAMD
+cpu family\t: 25
+model\t\t: 17
+model name\t: AMD EPYC
+stepping\t: 1
+flags\t\t: fpu sse2 avx avx2 avx512f avx512bw
+"""
+
+
+def test_the_cpu_is_named_by_model_name_id_and_widest_vector_extension():
+    assert provenance.cpu_of(CPUINFO) == {"cpu": "AMD EPYC", "cpu_id": "25/17/1", "simd": "AVX-512"}
+    no512 = CPUINFO.replace(" avx512f avx512bw", "")
+    assert provenance.cpu_of(no512)["simd"] == "AVX2"
+    assert provenance.cpu_of(no512.replace(" avx2", ""))["simd"] == "other"
+    # an ARM kernel prints no family or model name: no id, the platform's name
+    arm = provenance.cpu_of("processor\t: 0\nBogoMIPS\t: 50.00\nFeatures\t: fp asimd\n")
+    assert arm["cpu_id"] is None and arm["simd"] == "other" and arm["cpu"]
+    here = provenance.machine()
+    assert here["cores"] >= 1 and set(here) == {"cpu", "cpu_id", "simd", "cores"}

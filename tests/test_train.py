@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 import torch
 
+from harness.runs import provenance
 from model import cache as bevcache
 from model.checkpoint import load_checkpoint
 from model.curves import Curves, draw_loss_curves, load_history, plot_loss_curves
@@ -310,6 +311,7 @@ def test_train_cli_control_with_weights_records_them(sets, tmp_path, capsys):
                  "--cache", str(train_dir / "cache"), "--lr", "0.003"]) == 0
     m = json.loads((out / "manifest.json").read_text())
     assert m["loss_weights"] == {"origin": 1.0, "scimm": 0.25, "mode": 0.0}
+    assert m["machine"] == provenance.machine()  # which CPU trained it: the records of a run in parts say
     # the peak learning rate: 2 steps into the 200-step warm-up, 3e-3 * 2 / 200
     assert m["schedule"]["lr"] == 0.003 and m["history"][-1]["step"] == 2
     assert m["history"][-1]["lr"] == pytest.approx(3e-5, rel=1e-12)

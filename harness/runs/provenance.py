@@ -12,7 +12,8 @@ docs/reliability.md).
 Strict on purpose: any change to a ``.py`` file of the stages counts, even one that cannot
 change a record (a docstring, the bench). Left out: the CPU type (records depend on it too,
 but a Ray run spans machines; a run finished on another CPU type is another sample of the
-experiment, compared by its means); the software of Ray nodes other than the driver's (the
+experiment, compared by its means; ``machine()`` names it in a student's manifest and in
+the bench's figures); the software of Ray nodes other than the driver's (the
 driver's is recorded, the nodes are expected to run the same install); and the libraries
 outside the loop (pandas, tqdm, matplotlib)."""
 from __future__ import annotations
@@ -72,6 +73,40 @@ def software() -> dict:
         except importlib.metadata.PackageNotFoundError:
             out[lib] = None
     return out
+
+
+def cpu_of(cpuinfo: str) -> dict:
+    """The CPU described by the text of Linux's ``/proc/cpuinfo``: {"cpu": model name,
+    "cpu_id": "family/model/stepping" (decimal, as the kernel prints them; None where it
+    prints none), "simd": the widest vector extension its flags list, "AVX-512", "AVX2" or
+    "other"}. A virtual machine may report a bare name ("AMD EPYC"); the id tells CPU
+    generations apart, and the vector extension picks the kernels of NumPy, ONNX Runtime and
+    torch (docs/reliability.md, "On the same CPU model")."""
+    fields: dict[str, str] = {}
+    for line in cpuinfo.splitlines():
+        if not line.strip():
+            break  # the first processor's block describes them all
+        key, _, value = line.partition(":")
+        fields.setdefault(key.strip(), value.strip())
+    ident = [fields.get(k) for k in ("cpu family", "model", "stepping")]
+    flags = set(fields.get("flags", "").split())
+    return {"cpu": fields.get("model name") or platform.processor() or platform.machine(),
+            "cpu_id": "/".join(ident) if all(ident) else None,
+            "simd": "AVX-512" if "avx512f" in flags else "AVX2" if "avx2" in flags else "other"}
+
+
+@lru_cache(maxsize=1)
+def machine() -> dict:
+    """``cpu_of`` this machine (Linux; elsewhere the platform's processor name and no id), and
+    "cores": the CPUs the OS offers. Kept in a student's manifest: the data and the student's
+    last bits depend on the CPU, so the records of a run made on several machines say which
+    seed came from which."""
+    try:
+        with open("/proc/cpuinfo") as f:
+            found = cpu_of(f.read())
+    except OSError:  # not Linux
+        found = cpu_of("")
+    return {**found, "cores": os.cpu_count()}
 
 
 def config_digest(path: str) -> str | None:

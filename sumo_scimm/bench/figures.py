@@ -147,22 +147,17 @@ def reproduce_figure(folder: str) -> dict:
 
 
 def machine() -> dict:
-    """What the figures were measured on: CPU model, cores, the kernels torch picked, and the
-    versions that set the per-tick cost (torch trains the student, ONNX Runtime runs it in
-    the closed loop). Figures of two runs compare only on the same kind of machine (and a
-    student's records only on the same CPU type: docs/reliability.md)."""
+    """What the figures were measured on: CPU model, its family/model/stepping and widest
+    vector extension, cores (harness.runs.provenance.machine), the kernels torch picked,
+    and the versions that set the per-tick cost (torch trains the student, ONNX Runtime
+    runs it in the closed loop). Figures of two runs compare only on the same kind of
+    machine (and a student's records only on the same CPU type: docs/reliability.md)."""
     import importlib.metadata
-    import os
     import platform
 
     import torch
-    cpu = platform.processor() or platform.machine()
-    try:
-        with open("/proc/cpuinfo") as f:
-            cpu = next((ln.split(":", 1)[1].strip() for ln in f if ln.startswith("model name")), cpu)
-    except OSError:  # not Linux
-        pass
-    return {"cpu": cpu, "cores": os.cpu_count(), "torch": torch.__version__,
+    from harness.runs import provenance
+    return {**provenance.machine(), "torch": torch.__version__,
             "torch_cpu_capability": torch.backends.cpu.get_cpu_capability(),
             "onnxruntime": importlib.metadata.version("onnxruntime"),  # the student's runtime (model.runtime)
             "libsumo": importlib.metadata.version("libsumo"), "numpy": importlib.metadata.version("numpy"),

@@ -89,16 +89,9 @@ def test_a_module_agent_is_identified_by_its_module_file(tmp_path, monkeypatch):
     assert "agent_module_digest" not in provenance.run_identity([Job(0, route, 0, "expert", None, 1, "")])["route_runs"][job.key]
 
 
-# two processors' blocks of /proc/cpuinfo as a 2-core KVM guest prints them (shortened)
-CPUINFO = """processor\t: 0
-vendor_id\t: AuthenticAMD
-cpu family\t: 25
-model\t\t: 17
-model name\t: AMD EPYC
-stepping\t: 1
-flags\t\t: fpu sse2 avx avx2 avx512f avx512bw
-
-processor\t: 1
+# a processor's block of /proc/cpuinfo as a KVM guest prints it (shortened); the kernel
+# prints one per CPU, here two
+BLOCK = """processor\t: {}
 vendor_id\t: AuthenticAMD
 cpu family\t: 25
 model\t\t: 17
@@ -106,6 +99,7 @@ model name\t: AMD EPYC
 stepping\t: 1
 flags\t\t: fpu sse2 avx avx2 avx512f avx512bw
 """
+CPUINFO = BLOCK.format(0) + "\n" + BLOCK.format(1)
 
 
 def test_the_cpu_is_named_by_model_name_id_and_widest_vector_extension():

@@ -97,10 +97,10 @@ def cpu_of(cpuinfo: str) -> dict:
 
 @lru_cache(maxsize=1)
 def machine() -> dict:
-    """``cpu_of`` this machine (Linux; elsewhere the platform's processor name and no id), and
-    "cores": the CPUs the OS offers. Kept in a student's manifest: the data and the student's
-    last bits depend on the CPU, so the records of a run made on several machines say which
-    seed came from which."""
+    """``cpu_of`` the CPU the process runs on (read from /proc/cpuinfo on Linux; elsewhere
+    the platform's processor name and no id), and "cores": the CPUs the OS offers. Kept in
+    a student's manifest: the data and the student's last bits depend on the CPU, so the
+    records of a run made on several machines say which seed came from which."""
     try:
         with open("/proc/cpuinfo") as f:
             found = cpu_of(f.read())

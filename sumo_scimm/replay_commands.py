@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from harness.loop.episode import AGENT_TIMEOUT
+from harness.loop.deadline import AGENT_TIMEOUT
 from sumo_scimm.options import out_arg
 
 

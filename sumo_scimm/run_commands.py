@@ -12,7 +12,7 @@ from pathlib import Path
 
 from files.atomic import write_atomic
 from harness.common.errors import BadInput
-from harness.loop.episode import AGENT_TIMEOUT
+from harness.loop.deadline import AGENT_TIMEOUT
 from sumo_scimm.options import add_agent_options, add_backend_options, add_vehicle_option, backend_of, out_arg, seed_arg
 
 RULES = ("lb2.0", "lb2.1", "b2d")

@@ -27,7 +27,7 @@ from controller.ego import DEFAULT_VEHICLE
 from harness.common.errors import BadInput
 from harness.common.lock import FolderLock
 from harness.loop.agent import check_agent_setup
-from harness.loop.episode import AGENT_TIMEOUT
+from harness.loop.deadline import AGENT_TIMEOUT
 from harness.runs.jobs import Job, route_seed
 
 

@@ -21,7 +21,7 @@ import numpy as np
 from controller.ego import DEFAULT_VEHICLE
 from files.atomic import savez_atomic
 from harness.common.lock import check_folder
-from harness.loop.episode import AGENT_TIMEOUT
+from harness.loop.deadline import AGENT_TIMEOUT
 from harness.scoring.bench2drive import record_keys
 from harness.scoring.infractions import KEYS
 from harness.scoring.records import COUNT_KEYS, STABILITY

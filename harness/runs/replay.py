@@ -54,7 +54,8 @@ from files.atomic import savez_atomic, write_atomic
 from harness.common.errors import BadInput
 from harness.common.lock import FolderLock
 from harness.loop.agent import agent_call, agent_for, check_agent_setup, forget_agent, split_output, validate_sensors
-from harness.loop.episode import AGENT_TIMEOUT, deadline_alarm, sensor_inputs, step_with_deadline
+from harness.loop.deadline import AGENT_TIMEOUT, deadline_alarm, step_with_deadline
+from harness.loop.episode import sensor_inputs
 from harness.runs.jobs import hung_message
 from harness.runs.workers import HUNG, run_workers
 from harness.loop.scene_log import has_scene, scene_at

@@ -35,12 +35,14 @@ from model.checkpoint import load_checkpoint, resolve
 from model.runtime import INFERENCE_THREADS, OnnxNetwork
 
 
-@functools.lru_cache(maxsize=4)
+@functools.lru_cache(maxsize=8)
 def _loaded(key: tuple[str, int, int]) -> tuple[torch.nn.Module, dict, OnnxNetwork]:
     """The checkpoint at key[0] (key: path, mtime [ns], size), loaded and exported once per
     process: an eval worker sets up a new agent for every route, and every export (a trace
     underneath) keeps memory that is never freed (0.16-0.45 MB per export, measured with and
-    without handing freed memory back; a TorchScript trace kept about 5 MB)."""
+    without handing freed memory back; a TorchScript trace kept about 5 MB). Eight places:
+    a replay sets up each of its students on every route, and more students than places
+    would export every one of them again on every route."""
     model, manifest = load_checkpoint(key[0])
     return model, manifest, OnnxNetwork(model)
 

@@ -1,6 +1,7 @@
 """Replay (harness.runs.replay, harness.loop.scene_log): the BEV re-rendered from a run's log
-equals the closed-loop BEV bit for bit, and a run replayed with its own agent gives back
-the outputs it logged. Real libsumo and the shipped SC-IMM student (ONNX Runtime)."""
+equals the closed-loop BEV bit for bit, a run replayed with its own agent gives back
+the outputs it logged, and students named by their checkpoint files are replayed each on
+its own. Real libsumo and the shipped SC-IMM student (ONNX Runtime)."""
 from __future__ import annotations
 
 import csv
@@ -15,7 +16,7 @@ from harness.loop.scene_log import scene_at
 from harness.runs.replay import route_digest
 from harness.sensors.bev import VEHICLES, WALKERS, BevRenderer
 from harness.sim.plan import build_plan
-from model.agent import ScimmStudent
+from model.agent import SHIPPED, ScimmStudent
 from scenarios import set_path
 from scenarios.routefile import read_routes
 from sumo_nets import load_net
@@ -93,6 +94,15 @@ def test_a_run_replayed_with_its_own_agent_gives_back_its_logged_outputs(tmp_pat
     table = (rep / "table.md").read_text()
     assert "| scimm | 1 |" in table and "| baseline | " in table
     assert json.loads((rep / "replay.json").read_text())["agents"] == ["scimm", "baseline"]
+    # the same two students named by their checkpoint files (both are the agent 'student'):
+    # each keeps its own network and controller, so the outputs are those of the replay by name
+    by_path = tmp_path / "replay_by_path"
+    ckpts = [str(SHIPPED / arm / "student.pt") for arm in ("scimm", "baseline")]
+    assert main(["replay", "--run", str(run), "--agent", ckpts[0], "--agent", ckpts[1], "--workers", "1",
+                 "--out", str(by_path)]) == 0
+    again = np.load(by_path / "outputs" / f"{key}.npz")
+    for name in out.files:
+        np.testing.assert_array_equal(again[name], out[name], err_msg=name)
 
 
 def _bare_run(tmp_path: Path, log: dict | None) -> Path:

@@ -1,13 +1,15 @@
-"""docs/results.md is rebuilt from the records the repository keeps (docs/results/records).
+"""docs/results.md is rebuilt from the records the repository keeps of the run it reports
+(docs/results/decisive).
 
-Every table of the page sits between ``<!-- sumo-scimm report: SET/FILE -->`` and
-``<!-- end -->`` and must equal, character for character, the file FILE that
-``sumo-scimm report`` writes from the committed records of evaluation set SET (the arms in
-the order of ``sumo-scimm reproduce``, each arm's seeds in seed order, as reproduce pairs
-them). Every other number of the page with a decimal point must appear in those rebuilt
-tables, in the stage-time table ``reproduce`` prints from the committed stages.json, or in
-a committed JSON file (the students' manifests): a figure typed by hand that no committed
-file holds fails.
+Every table of the page sits between ``<!-- sumo-scimm report: SET/FILE -->`` (or
+``SET[ARM,ARM]/FILE``) and ``<!-- end -->`` and must equal, character for character, the
+file FILE that ``sumo-scimm report`` writes from the committed records of evaluation set
+SET: every arm, or only the arms in brackets, in the order of ``sumo-scimm reproduce``,
+each arm's seeds in seed order, as reproduce pairs them. Every other number of the page
+with a decimal point must appear in those rebuilt tables, in the stage-time table
+``reproduce`` prints from the committed stages.json, or in a committed JSON, CSV or
+Markdown file of the run (the students' manifests, Table 2, the replay tables): a figure
+typed by hand that no committed file holds fails.
 """
 from __future__ import annotations
 
@@ -23,15 +25,19 @@ from sumo_scimm.cli import main
 
 ROOT = Path(__file__).resolve().parents[1]
 PAGE = ROOT / "docs" / "results.md"
-RECORDS = ROOT / "docs" / "results" / "records"
-TABLE = re.compile(r"<!-- sumo-scimm report: (\S+?)/(\S+?) -->\n(.*?)\n<!-- end -->", re.S)
+RECORDS = ROOT / "docs" / "results" / "decisive"
+TABLE = re.compile(r"<!-- sumo-scimm report: ([\w.-]+(?:\[[\w,]+\])?)/(\S+?) -->\n(.*?)\n<!-- end -->", re.S)
+SELECTION = re.compile(r"([\w.-]+)(?:\[([\w,]+)\])?")
 DECIMAL = re.compile(r"(?<![\w.])[-+]?\d+\.\d+(?!\.\d|\w)")  # a version such as 0.2.0 is not a figure
 
 
-def _arms(route_set: Path) -> list[str]:
-    """``NAME=DIR,DIR...`` for every arm with committed runs of ``route_set``."""
+def _arms(route_set: Path, only: set[str] | None = None) -> list[str]:
+    """``NAME=DIR,DIR...`` for every arm (or every arm in ``only``) with committed runs of
+    ``route_set``."""
     out = []
     for arm, _ in ARMS:
+        if only is not None and arm not in only:
+            continue
         runs = sorted(route_set.glob(f"{arm}_s*"), key=lambda d: int(d.name.rsplit("_s", 1)[1]))
         if runs:
             out.append(f"{arm}=" + ",".join(str(d) for d in runs))
@@ -40,14 +46,18 @@ def _arms(route_set: Path) -> list[str]:
 
 @pytest.fixture(scope="module")
 def rebuilt(tmp_path_factory) -> dict[str, Path]:
-    """{evaluation set: the folder ``sumo-scimm report`` wrote from its committed records}."""
-    sets = sorted(d for d in RECORDS.iterdir() if d.is_dir() and d.name not in ("models", "replay", "data"))
+    """{SET or SET[ARM,ARM] of the page's tables, and every evaluation set: the folder
+    ``sumo-scimm report`` wrote from its committed records}."""
+    sets = sorted(d.name for d in RECORDS.iterdir() if d.is_dir() and d.name not in ("models", "replay", "data"))
     assert sets, f"no committed records under {RECORDS}"
     out = {}
-    for route_set in sets:
-        folder = tmp_path_factory.mktemp(route_set.name)
-        assert main(["report", *_arms(route_set), "--out", str(folder)]) == 0
-        out[route_set.name] = folder
+    for selection in sorted(set(sets) | {s for s, _, _ in TABLE.findall(PAGE.read_text())}):
+        route_set, only = SELECTION.fullmatch(selection).groups()
+        assert route_set in sets, f"{selection}: no committed records of this set"
+        folder = tmp_path_factory.mktemp(route_set)
+        assert main(["report", *_arms(RECORDS / route_set, set(only.split(",")) if only else None),
+                     "--out", str(folder)]) == 0
+        out[selection] = folder
     return out
 
 
@@ -62,10 +72,11 @@ def test_every_table_of_the_results_page_is_what_report_writes_from_the_committe
 
 
 def test_every_other_figure_of_the_results_page_is_in_a_rebuilt_table_or_a_committed_file(rebuilt):
-    files = [f for folder in rebuilt.values() for f in folder.glob("*.md")] + list(RECORDS.rglob("*.json"))
+    files = [f for folder in rebuilt.values() for f in folder.glob("*.md")]
+    files += [f for pattern in ("*.json", "*.csv", "*.md") for f in RECORDS.rglob(pattern)]
     known = "\n".join(f.read_text() for f in files) + "\n"
     seeds = sorted({int(d.name.rsplit("_s", 1)[1]) for d in RECORDS.glob("*/*_s*") if d.is_dir()})
-    second = next((s for s in rebuilt if s != EVAL_SET), None)
+    second = next((s for s in rebuilt if s != EVAL_SET and "[" not in s), None)
     known += stage_table(json.loads((RECORDS / "stages.json").read_text()), [a for a, _ in ARMS], seeds,
                          EVAL_SET, second)
     prose = TABLE.sub("", PAGE.read_text())

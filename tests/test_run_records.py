@@ -1,7 +1,8 @@
-"""A run's records folder round trip: the committed records of docs/results/records restored
-into an empty output folder (as a later part of a long run does on another machine) are
-found by ``reproduce``'s pooling, give ``report`` the same tables as the records themselves,
-and are archived again byte for byte; the seeds a part runs itself are not restored."""
+"""A run's records folder round trip: the committed records of docs/results/decisive (the
+twenty-seed run of docs/results.md) restored into an empty output folder (as a later part
+of a long run does on another machine) are found by ``reproduce``'s pooling, give ``report``
+the same tables as the records themselves, and are archived again byte for byte; the seeds
+a part runs itself are not restored."""
 from __future__ import annotations
 
 import filecmp
@@ -12,21 +13,22 @@ from model.reproduce import EVAL_SET, SECOND_SET, pooled_runs
 from model.run_records import archive_records, restore_records
 from sumo_scimm.cli import main
 
-RECORDS = Path(__file__).resolve().parents[1] / "docs" / "results" / "records"
-ARMS = ("baseline", "control", "fixed", "scimm", "smoother")
+RECORDS = Path(__file__).resolve().parents[1] / "docs" / "results" / "decisive"
+ARMS = ("baseline", "control", "fixed", "scimm")
+SEEDS = 20
 
 
 def _restored(tmp_path: Path, skip: range) -> tuple[Path, dict[str, Path], list[Path]]:
     out = tmp_path / "out"
     shutil.copytree(RECORDS, out / "records")
-    (out / "records" / "replay").mkdir()
+    (out / "records" / "replay").mkdir(exist_ok=True)
     (out / "records" / "replay" / "s0.md").write_text("| agent | DS |\n")  # a seed's replay table
     folders = {EVAL_SET: out / "runs", SECOND_SET: out / "runs" / SECOND_SET}
     return out, folders, restore_records(out, folders, skip)
 
 
 def test_restored_records_pool_report_and_archive_as_the_committed_ones(tmp_path):
-    out, folders, restored = _restored(tmp_path, range(1, 3))
+    out, folders, restored = _restored(tmp_path, range(1, SEEDS))
     assert len(restored) == 2 * len(ARMS)  # every arm's seed 0 on both sets
     for label, folder in folders.items():
         runs, seeds = pooled_runs(folder, ARMS)
@@ -51,12 +53,12 @@ def test_restored_records_pool_report_and_archive_as_the_committed_ones(tmp_path
             cmp = filecmp.dircmp(dest / label / f"{arm}_s0", RECORDS / label / f"{arm}_s0")
             assert cmp.left_only == cmp.right_only == [] and filecmp.cmpfiles(
                 dest / label / f"{arm}_s0", RECORDS / label / f"{arm}_s0", cmp.common, shallow=False)[1:] == ([], [])
-    assert filecmp.cmp(dest / "models" / "smoother_s0.json", RECORDS / "models" / "smoother_s0.json", shallow=False)
+    assert filecmp.cmp(dest / "models" / "baseline_s0.json", RECORDS / "models" / "baseline_s0.json", shallow=False)
     assert (dest / "replay" / "s0.md").read_text() == "| agent | DS |\n"
 
 
 def test_a_part_does_not_restore_its_own_seeds_nor_overwrite_a_run_folder(tmp_path):
-    out, folders, restored = _restored(tmp_path, range(0, 1))
+    out, folders, restored = _restored(tmp_path, range(0, SEEDS))
     assert restored == [] and not (out / "runs").exists() and not (out / "models").exists()
     assert not (out / "replay" / "s0").exists()
     own = out / "runs" / "scimm_s0"  # an evaluation the output folder already holds, plain files
@@ -65,4 +67,4 @@ def test_a_part_does_not_restore_its_own_seeds_nor_overwrite_a_run_folder(tmp_pa
     (own / "results.json").write_text("{}")
     restored = restore_records(out, folders, range(5, 6))
     assert own not in restored and sorted(p.name for p in own.iterdir()) == ["records.csv", "results.json"]
-    assert len(restored) == 2 * len(ARMS) - 1
+    assert len(restored) == 2 * len(ARMS) * (SEEDS - 1) - 1  # every seed but 5, but the folder it holds

@@ -190,21 +190,25 @@ def load_agent(name: str) -> AutonomousAgent:
                              "an agent is built without arguments (its config goes to setup())") from None
 
 
-_built: dict[str, AutonomousAgent] = {}  # this process's agents by name (agent_for)
+_built: dict[tuple[str, int], AutonomousAgent] = {}  # this process's agents by (name, slot) (agent_for)
 
 
-def agent_for(name: str) -> AutonomousAgent:
-    """This process's instance of agent ``name``, built on first use: a worker drives all
-    its routes with one instance (``setup`` starts each route afresh)."""
-    agent = _built.get(name)
+def agent_for(name: str, slot: int = 0) -> AutonomousAgent:
+    """This process's instance of agent ``name`` in place ``slot``, built on first use: a
+    worker drives all its routes with one instance (``setup`` starts each route afresh).
+    Several agents stepped side by side (a replay) each take their own slot, so two that
+    share a name (two ``--agent PATH.pt`` are both the agent ``student``, each with its
+    checkpoint) never share an instance, its network or its controller's state."""
+    agent = _built.get((name, slot))
     if agent is None:
-        agent = _built[name] = load_agent(name)
+        agent = _built[(name, slot)] = load_agent(name)
     return agent
 
 
-def forget_agent(name: str) -> None:
-    """Drop this process's instance of ``name`` (after it failed): the next route builds one."""
-    _built.pop(name, None)
+def forget_agent(name: str, slot: int = 0) -> None:
+    """Drop this process's instance of ``name`` in ``slot`` (after it failed): the next
+    route builds one."""
+    _built.pop((name, slot), None)
 
 
 # The deadline of the agent call running in this process, shared with the parent that

@@ -116,7 +116,7 @@ def replay_route(job: ReplayJob) -> list[dict]:
             continue
         try:
             with agent_call(job.timeout, i):
-                agent = agent_for(name)
+                agent = agent_for(name, i)  # a slot per agent: two checkpoints share the name 'student'
             with agent_call(job.timeout, i):
                 agent.set_global_plan(plan)
                 agent.setup(config)
@@ -124,7 +124,7 @@ def replay_route(job: ReplayJob) -> list[dict]:
                 spec = agent.sensors()
             validate_sensors(spec)
         except Exception as exc:  # noqa: BLE001 - an agent failure is its row's message
-            forget_agent(name)
+            forget_agent(name, i)
             agent, spec, messages[i] = None, [], f"set-up failed: {type(exc).__name__}: {exc}"
         agents.append(agent)
         specs.append(spec)
@@ -140,7 +140,7 @@ def replay_route(job: ReplayJob) -> list[dict]:
                 control, pred = split_output(step_with_deadline(agent, inputs, sc.timestamp, job.timeout, alarm, i))
             except Exception as exc:  # noqa: BLE001
                 messages[i] = f"tick {t}: {type(exc).__name__}: {exc}"
-                forget_agent(job.names[i])
+                forget_agent(job.names[i], i)
                 agents[i] = None
                 continue
             o = outs[i]
@@ -156,7 +156,7 @@ def replay_route(job: ReplayJob) -> list[dict]:
                     agent.destroy()
         except Exception as exc:  # noqa: BLE001 - destroy errors must not hide the route's outputs
             messages[i] = messages[i] or f"destroy() raised {type(exc).__name__}: {exc}"
-            forget_agent(job.names[i])
+            forget_agent(job.names[i], i)
     savez_atomic(Path(job.out) / f"{job.key}.npz", **{f"a{i}_{k}": v for i, o in enumerate(outs) for k, v in o.items()})
     v = log["v"][:n]
     moving = int(moving_ticks(v).sum())

@@ -81,6 +81,31 @@ def test_augmentation_moves_image_and_labels_together(episode):
     np.testing.assert_allclose(back, lp["path"], atol=1e-12)
 
 
+def _moved(episode, tmp_path, route_file: str):
+    """A copy of ``episode``'s file that says it was collected from ``route_file``."""
+    arrays = dict(episode.a, route_file=np.array(route_file))
+    path = tmp_path / episode.path.name
+    np.savez_compressed(path, **arrays)
+    return path
+
+
+def test_an_episode_collected_in_another_checkout_reads_its_plan_from_the_shipped_set(episode, tmp_path):
+    # the stored path of a shipped set that is not there (another checkout, another machine)
+    moved = Episode(_moved(episode, tmp_path, "/no/such/checkout/scenarios/town12_smoke.xml"))
+    assert moved.plan.route_id == episode.plan.route_id
+    np.testing.assert_array_equal(moved.plan.s, episode.plan.s)
+    np.testing.assert_array_equal(moved.plan.shown_xy, episode.plan.shown_xy)
+    np.testing.assert_array_equal(moved.bev(len(episode) // 2), episode.bev(len(episode) // 2))
+
+
+@pytest.mark.parametrize("stored", ["/no/such/checkout/scenarios/no_such_set.xml", "/no/such/folder/town12_smoke.xml"])
+def test_an_episode_whose_route_file_is_gone_says_so_in_one_line(episode, tmp_path, stored):
+    from harness.common.errors import BadInput
+    with pytest.raises(BadInput) as err:
+        Episode(_moved(episode, tmp_path, stored))
+    assert stored in str(err.value) and "\n" not in str(err.value)
+
+
 @pytest.mark.slow
 def test_collect_writes_an_index_and_data_show_reports(tmp_path, capsys):
     out = tmp_path / "data"

@@ -22,6 +22,7 @@ from harness.common.errors import BadInput
 from harness.sensors.bev import BevRenderer
 from harness.sim.plan import GlobalPlan, build_plan
 from harness.sim.world import Snapshot
+from scenarios import set_path
 from scenarios.routefile import read_routes
 from sumo_nets import load_net
 
@@ -30,8 +31,24 @@ SITUATIONS = ("junction_turn", "stopping", "bypass", "cruise")
 
 @lru_cache(maxsize=64)
 def _plans(route_file: str) -> dict[str, GlobalPlan]:
-    _, routes = read_routes(Path(route_file))
+    _, routes = read_routes(route_source(route_file))
     return {r.id: build_plan(r, load_net(r.town)) for r in routes}
+
+
+def route_source(stored: str) -> Path:
+    """The route file an episode's plan is read from: the path the episode stores
+    (``route_file``, absolute, as ``collect`` was given it), or, when no file is there and
+    that path named a shipped set (``.../scenarios/<set>.xml``: a dataset collected in
+    another checkout or on another machine), that set in this installation. BadInput if
+    neither exists."""
+    path = Path(stored)
+    if path.is_file():
+        return path
+    shipped = set_path(path.stem)
+    if path.parent.name == shipped.parent.name and path.suffix == ".xml" and shipped.is_file():
+        return shipped
+    raise BadInput(f"route file {stored} of a recorded episode does not exist and names no shipped route set: "
+                   "put the route file back at that path, or collect the dataset again")
 
 
 class Episode:

@@ -11,13 +11,13 @@ from pathlib import Path
 
 import numpy as np
 
-from controller.ego import VEHICLES
+from controller.ego import ego_class
 from controller.vehicle import DT, Control, EgoState
 
 
 def _drive(name: str, v0: float, controls) -> np.ndarray:
     """(T, 5) rows t, x, y, yaw, v of model ``name`` from speed v0 under ``controls(k, v)``."""
-    ego = VEHICLES[name](EgoState(0.0, 0.0, 0.0, v0), np.random.default_rng(0), noise=False)
+    ego = ego_class(name)(EgoState(0.0, 0.0, 0.0, v0), np.random.default_rng(0), noise=False)
     rows, s = [(0.0, 0.0, 0.0, 0.0, v0)], ego.state
     for k in range(1, 10_000):
         c = controls(k, s.v)

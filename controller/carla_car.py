@@ -7,8 +7,8 @@ brakes hard off the throttle in a low gear, the steering wheel turns at a finite
 module models that machinery, integrated at 20 Hz in fixed sub-steps. The kinematic bicycle
 of PDM-Lite (controller.vehicle) is the other ego model (``--vehicle kinematic``).
 
-The sub-steps run compiled (numba: about 4.5 us a tick, against 28-41 us run by CPython);
-the compiled model gives the doubles of this same source run by CPython, bit for bit.
+The functions of one tick run compiled (numba); compiled, they give the doubles this same
+source gives run by CPython, bit for bit (docs/vehicle.md has their cost).
 
 State
 -----
@@ -314,12 +314,12 @@ def _tick(st: np.ndarray, steer_cmd: float, throttle_cmd: float, brake_cmd: floa
     return st[X], st[Y], st[YAW], hypot(st[VX], st[VY])
 
 
-def _field(i: int, kind=float) -> property:
-    """The state vector's entry i as an attribute (read and written)."""
-    def get(self):
+def _field(i: int, kind: type = float) -> property:
+    """The state vector's entry i as an attribute of the car, read as ``kind``, written as a double."""
+    def get(self: "CarlaCar") -> float | int:
         return kind(self.st[i])
 
-    def put(self, value) -> None:
+    def put(self: "CarlaCar", value: float) -> None:
         self.st[i] = value
     return property(get, put)
 
@@ -328,10 +328,12 @@ class CarlaCar:
     """The ego as CARLA's Lincoln MKZ: ``step(control) -> EgoState``, as
     controller.vehicle.EgoVehicle. ``noise``: the seeded steer and throttle noise."""
 
-    x, y, yaw, vx, vy, r, w_e = (_field(i) for i in (X, Y, YAW, VX, VY, YAW_RATE, W_E))
-    gear = _field(GEAR, int)
-    shift_left, since_shift = _field(SHIFT_LEFT), _field(SINCE_SHIFT)  # [s] of neutral left; [s] since the last shift
-    steer, throttle, brake = _field(STEER), _field(THROTTLE), _field(BRAKE)  # applied inputs
+    x, y, yaw = _field(X), _field(Y), _field(YAW)  # pose [m], [m], [rad]
+    vx, vy, r = _field(VX), _field(VY), _field(YAW_RATE)  # body-frame velocity [m/s], yaw rate [rad/s]
+    w_e, gear = _field(W_E), _field(GEAR, int)  # engine speed [rad/s], gear 1..5
+    shift_left = _field(SHIFT_LEFT)  # [s] of neutral left in the shift under way
+    since_shift = _field(SINCE_SHIFT)  # [s] since the last shift
+    steer, throttle, brake = _field(STEER), _field(THROTTLE), _field(BRAKE)  # the applied inputs
 
     def __init__(self, start: EgoState, rng: np.random.Generator, noise: bool = True):
         self.rng, self.noise = rng, noise

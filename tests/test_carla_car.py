@@ -1,8 +1,11 @@
 """CARLA's Lincoln MKZ model (controller.carla_car): figures derived by hand from its
-parameters (their values and sources: docs/vehicle.md)."""
+parameters (their values and sources: docs/vehicle.md), and the compiled model against its
+own source run by CPython."""
 from __future__ import annotations
 
 import math
+import os
+import subprocess
 import sys
 
 import numpy as np
@@ -244,9 +247,6 @@ def test_the_compiled_model_equals_its_source_run_by_cpython_bit_for_bit():
     NUMBA_DISABLE_JIT=1, in a fresh interpreter) must give the same doubles, tick for tick,
     on a drive through every part of the model: compiled code may not reorder, fuse or
     approximate any operation."""
-    import os
-    import subprocess
-
     def run(env_extra):
         env = {**os.environ, **env_extra}
         return subprocess.run([sys.executable, "-c", _DRIVE], env=env, capture_output=True, text=True,

@@ -159,7 +159,7 @@ C_REAR = LAT_STIFF_VALUE / LAT_STIFF_MAX_LOAD * _FZ_R
 # The state one tick advances, one float64 vector ``st`` (the names of the docstring's State,
 # then the applied inputs): the sub-steps below are compiled (numba) and work on it in place.
 X, Y, YAW, VX, VY, YAW_RATE, W_E, GEAR, SHIFT_LEFT, SINCE_SHIFT, STEER, THROTTLE, BRAKE = range(13)
-STATE_SIZE = 13
+STATE_SIZE = BRAKE + 1
 
 # The functions below are compiled by numba and equal, bit for bit, to the same source run by
 # CPython (tests/test_carla_car.py runs both): the same operations on the same doubles in the

@@ -151,6 +151,20 @@ def test_agent_setup_failure_is_recorded_as_such(tmp_path):
         assert log["tls"].shape == (0, 0)
 
 
+def test_a_worker_that_ends_with_the_run_runs_its_agents_atexit_functions(tmp_path, monkeypatch):
+    """A worker ends without the interpreter's teardown (harness.runs.workers), but what an
+    agent registered with ``atexit`` still runs there: the agent of tests/exit_agent.py writes
+    one line from the worker, with the ticks it drove (the route's steps)."""
+    exit_file = tmp_path / "exit.txt"
+    monkeypatch.setenv("AGENT_EXIT_FILE", str(exit_file))
+    out = tmp_path / "run"
+    assert main(["eval", "--routes", "town12_smoke", "--routes-subset", "0", "--workers", "1", "--out", str(out),
+                 "--agent", "tests.exit_agent:WritesAtExit"]) == 0
+    (rec,) = _outputs_parse(out)
+    (worker,) = {json.loads(line)["pid"] for line in (out / "workers.jsonl").read_text().splitlines()}
+    assert exit_file.read_text() == f"{worker} drove {rec['steps']} ticks\n"
+
+
 @pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM], ids=["sigint", "sigterm"])
 def test_a_ctrl_c_or_sigterm_while_a_route_is_written_lands_after_its_files(signum):
     """The runner writes a route's record, worker line, records.csv and results.json under

@@ -204,6 +204,68 @@ def test_summary_does_not_depend_on_the_order_routes_finished_in():
     assert in_order[0]["ci95_low"] < in_order[0]["value"] < in_order[0]["ci95_high"]
 
 
+def test_summary_intervals_equal_a_bootstrap_taken_one_resample_at_a_time(monkeypatch):
+    """summary.csv's values and intervals, computed over all resamples at once, equal to the
+    last bit those of the plain bootstrap: per metric, 2000 resamples drawn one after another
+    from one generator (seed 0), the statistic of each taken from the resampled records with
+    np.nanmean, Python sums and the success rule, the non-finite ones dropped, then the
+    2.5 and 97.5 percentiles. Records with NaN and infinite stability values, routes with no
+    km (Collision/km NaN), and sets of 1 and 2 routes (no interval / a degenerate one)."""
+    from harness.scoring import outputs
+    from harness.scoring.bench2drive import success
+    from harness.scoring.records import STABILITY
+    monkeypatch.setattr(outputs, "_round", lambda x, digits: x)  # compare unrounded
+    collision_keys = ("collisions_layout", "collisions_pedestrian", "collisions_vehicle")
+
+    def mean_of(key):
+        def stat(rs):
+            vals = np.array([r[key] for r in rs], dtype=float)
+            return float(np.nanmean(vals)) if np.isfinite(vals).any() else math.nan
+        return stat
+
+    def per_km(rs):
+        km = sum(r["km_driven"] for r in rs)
+        return sum(r[k] for r in rs for k in collision_keys) / km if km > 0 else math.nan
+
+    def oracle(records):
+        records = sorted(records, key=lambda r: (r["repetition"], int(r["route_id"])))
+        rng = np.random.default_rng(0)
+        stats = [mean_of("ds"), mean_of("rc"), mean_of("is"),
+                 lambda rs: 100.0 * sum(success(r["lb"]) for r in rs) / len(rs), per_km,
+                 *[mean_of(k) for k in STABILITY]]
+        out = []
+        for stat in stats:
+            value, n = stat(records), len(records)
+            if n < 2:
+                out.append((value, math.nan, math.nan))
+                continue
+            draws = np.array([stat([records[i] for i in rng.integers(n, size=n)]) for _ in range(2000)])
+            draws = draws[np.isfinite(draws)]
+            out.append((value, float(np.percentile(draws, 2.5)), float(np.percentile(draws, 97.5)))
+                       if len(draws) else (value, math.nan, math.nan))
+        return out
+
+    def same(a, b):
+        return a == b or (math.isnan(a) and math.isnan(b))
+
+    rng = np.random.default_rng(11)
+    for n in (1, 2, 7, 30):
+        records = [{"route_id": str(i), "repetition": int(rng.integers(2)), "ds": float(rng.uniform(0, 100)),
+                    "rc": float(rng.uniform(0, 100)), "is": float(rng.uniform(0, 1)),
+                    **{k: int(rng.integers(3)) for k in collision_keys},
+                    "km_driven": float(rng.choice([0.0, rng.uniform(0.01, 2.0)])),
+                    **{k: float(rng.choice([math.nan, math.inf, rng.uniform(0, 10), rng.uniform(0, 10)]))
+                       for k in STABILITY},
+                    "lb": {"status": str(rng.choice(["Perfect", "Completed", "Failed - Agent got blocked"])),
+                           "infractions": inf()}}
+                   for i in range(n)]
+        rows = outputs.summary_rows(records, {"_checkpoint": {"global_record": {}}})
+        expected = oracle(records)
+        assert len(rows) == len(expected) == 5 + len(STABILITY)
+        for row, (value, lo, hi) in zip(rows, expected):
+            assert same(row["value"], value) and same(row["ci95_low"], lo) and same(row["ci95_high"], hi), row
+
+
 def test_summary_has_bench2drives_success_rate():
     """Success: Completed / Perfect with no infraction but minimum speed (Bench2Drive's
     merge_route_json.py): two of these four route runs, 50 %."""

@@ -16,6 +16,7 @@ from __future__ import annotations
 import csv
 import math
 from pathlib import Path
+from typing import Callable
 
 import numpy as np
 
@@ -61,26 +62,50 @@ def collisions_per_km(records: list[dict]) -> float:
     return n / km if km > 0 else math.nan
 
 
-def bootstrap(records: list[dict], stat, rng: np.random.Generator) -> tuple[float, float, float]:
-    """(value, 2.5 %, 97.5 %) of stat(records) with routes resampled with replacement."""
-    value = stat(records)
-    if len(records) < 2:
+def bootstrap(stat: Callable[[np.ndarray], np.ndarray], n: int,
+              rng: np.random.Generator) -> tuple[float, float, float]:
+    """(value, 2.5 %, 97.5 %) of a statistic of n route runs, the routes resampled with
+    replacement BOOTSTRAP times. ``stat(idx)`` gives the statistic of each row of route
+    indices ``idx`` (R, n): the value is that of the routes as they are (one row 0..n-1),
+    the interval the percentiles of the finite resample values. The resamples are drawn one
+    at a time, ``rng.integers(n, size=n)`` each."""
+    value = float(stat(np.arange(n)[None])[0])
+    if n < 2:
         return value, math.nan, math.nan
-    draws = []
-    for _ in range(BOOTSTRAP):
-        idx = rng.integers(len(records), size=len(records))
-        draws.append(stat([records[i] for i in idx]))
-    draws = np.asarray(draws, dtype=float)
+    draws = stat(np.stack([rng.integers(n, size=n) for _ in range(BOOTSTRAP)]))
     draws = draws[np.isfinite(draws)]
     if len(draws) == 0:
         return value, math.nan, math.nan
     return value, float(np.percentile(draws, 2.5)), float(np.percentile(draws, 97.5))
 
 
-def _mean_of(key: str):
-    def stat(rs: list[dict]) -> float:
-        vals = np.array([r[key] for r in rs], dtype=float)
-        return float(np.nanmean(vals)) if np.isfinite(vals).any() else math.nan
+def _mean_of(values: np.ndarray) -> Callable[[np.ndarray], np.ndarray]:
+    """The mean over the routes of each resample with NaN values left out, as np.nanmean
+    takes it; NaN where no value is finite."""
+    def stat(idx: np.ndarray) -> np.ndarray:
+        drawn = values[idx]
+        nan = np.isnan(drawn)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            mean = np.sum(np.where(nan, 0.0, drawn), axis=1) / np.sum(~nan, axis=1)
+        return np.where(np.isfinite(drawn).any(axis=1), mean, math.nan)
+    return stat
+
+
+def _percent_of(flags: np.ndarray) -> Callable[[np.ndarray], np.ndarray]:
+    """The share [%] of the resample's route runs whose flag is set (success_rate)."""
+    def stat(idx: np.ndarray) -> np.ndarray:
+        with np.errstate(invalid="ignore", divide="ignore"):
+            return 100.0 * flags[idx].sum(axis=1) / idx.shape[1]
+    return stat
+
+
+def _rate_of(counts: np.ndarray, km: np.ndarray) -> Callable[[np.ndarray], np.ndarray]:
+    """Summed ``counts`` over summed ``km`` of each resample (collisions_per_km), NaN where no
+    km; the km summed one route after another, as collisions_per_km sums them."""
+    def stat(idx: np.ndarray) -> np.ndarray:
+        total = np.cumsum(km[idx], axis=1)[:, -1] if idx.shape[1] else np.zeros(len(idx))
+        with np.errstate(invalid="ignore", divide="ignore"):
+            return np.where(total > 0, counts[idx].sum(axis=1) / total, math.nan)
     return stat
 
 
@@ -94,22 +119,30 @@ def summary_rows(records: list[dict], result: dict) -> list[dict]:
     an order that changes from run to run, and the bootstrap draws records by position."""
     records = _sorted(records)
     rng = np.random.default_rng(BOOTSTRAP_SEED)
+    n = len(records)
+
+    def column(key: str) -> np.ndarray:
+        return np.array([r[key] for r in records], dtype=float)
+
+    successes = np.array([success(r["lb"]) for r in records], dtype=np.int64)
+    collisions = np.array([sum(r[k] for k in COLLISION_KEYS) for r in records], dtype=np.int64)
     rows = []
-    for name, stat in [("driving_score", _mean_of("ds")), ("route_completion", _mean_of("rc")),
-                       ("infraction_penalty", _mean_of("is")), ("success_rate (%)", success_rate),
-                       ("collisions_per_km", collisions_per_km),
-                       *[(k, _mean_of(k)) for k in STABILITY]]:
-        v, lo, hi = bootstrap(records, stat, rng)
+    for name, stat in [("driving_score", _mean_of(column("ds"))), ("route_completion", _mean_of(column("rc"))),
+                       ("infraction_penalty", _mean_of(column("is"))),
+                       ("success_rate (%)", _percent_of(successes)),
+                       ("collisions_per_km", _rate_of(collisions, column("km_driven"))),
+                       *[(k, _mean_of(column(k))) for k in STABILITY]]:
+        v, lo, hi = bootstrap(stat, n, rng)
         digits = RATE_DECIMALS if name == "collisions_per_km" else SCORE_DECIMALS
         rows.append({"metric": name, "value": _round(v, digits), "ci95_low": _round(lo, digits),
-                     "ci95_high": _round(hi, digits), "routes": len(records)})
+                     "ci95_high": _round(hi, digits), "routes": n})
     rates = result["_checkpoint"]["global_record"].get("infractions", {})
     intervals = _rate_intervals(records, rng) if rates else {}
     for k, v in rates.items():
         unit = "km" if k == "outside_route_lanes" else "per km"
         lo, hi = intervals.get(k, (math.nan, math.nan))
         rows.append({"metric": f"{k} ({unit})", "value": v, "ci95_low": _round(lo, RATE_DECIMALS),
-                     "ci95_high": _round(hi, RATE_DECIMALS), "routes": len(records)})
+                     "ci95_high": _round(hi, RATE_DECIMALS), "routes": n})
     return rows
 
 

@@ -209,8 +209,9 @@ def test_summary_intervals_equal_a_bootstrap_taken_one_resample_at_a_time(monkey
     last bit those of the plain bootstrap: per metric, 2000 resamples drawn one after another
     from one generator (seed 0), the statistic of each taken from the resampled records with
     np.nanmean, Python sums and the success rule, the non-finite ones dropped, then the
-    2.5 and 97.5 percentiles. Records with NaN and infinite stability values, routes with no
-    km (Collision/km NaN), and sets of 1 and 2 routes (no interval / a degenerate one)."""
+    2.5 and 97.5 percentiles. Records with NaN and infinite stability values and routes with
+    no km (Collision/km NaN, in some resamples or all), in sets of 1 route (no interval), 2, 7
+    and 30."""
     from harness.scoring import outputs
     from harness.scoring.bench2drive import success
     from harness.scoring.records import STABILITY

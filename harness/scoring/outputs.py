@@ -55,13 +55,6 @@ def write_records_csv(records: list[dict], path: Path) -> None:
                                            for k, v in r.items()}) for r in _sorted(records)))
 
 
-def collisions_per_km(records: list[dict]) -> float:
-    """Summed collisions over summed completed km (not a mean of per-route rates)."""
-    km = sum(r["km_driven"] for r in records)
-    n = sum(r[k] for r in records for k in COLLISION_KEYS)
-    return n / km if km > 0 else math.nan
-
-
 def bootstrap(stat: Callable[[np.ndarray], np.ndarray], n: int,
               rng: np.random.Generator) -> tuple[float, float, float]:
     """(value, 2.5 %, 97.5 %) of a statistic of n route runs, the routes resampled with
@@ -100,8 +93,9 @@ def _percent_of(flags: np.ndarray) -> Callable[[np.ndarray], np.ndarray]:
 
 
 def _rate_of(counts: np.ndarray, km: np.ndarray) -> Callable[[np.ndarray], np.ndarray]:
-    """Summed ``counts`` over summed ``km`` of each resample (collisions_per_km), NaN where no
-    km; the km summed one route after another, as collisions_per_km sums them."""
+    """Summed ``counts`` over summed ``km`` of each resample, NaN where no km: Collision/km as
+    summed collisions over summed completed km, not a mean of per-route rates. The km are
+    summed one route after another (as Python's ``sum`` adds them)."""
     def stat(idx: np.ndarray) -> np.ndarray:
         total = np.cumsum(km[idx], axis=1)[:, -1] if idx.shape[1] else np.zeros(len(idx))
         with np.errstate(invalid="ignore", divide="ignore"):
@@ -182,4 +176,4 @@ def write_outputs(records: list[dict], total: int, out: Path, checkpoint: Path, 
     return result
 
 
-__all__ = ["write_outputs", "write_records_csv", "summary_rows", "success_rate", "collisions_per_km", "bootstrap"]
+__all__ = ["write_outputs", "write_records_csv", "summary_rows", "success_rate", "bootstrap"]

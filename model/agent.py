@@ -14,7 +14,7 @@ per core): about 0.3 instead of 0.8 ms a frame in torch, outputs equal to the to
 module's to rounding (a few 1e-6 m).
 
 A tick whose network inputs (binarised BEV, target point and, for a network with the speed
-input, speed, as float32) equal the previous tick's bit for bit gets the previous tick's
+input, speed, as float32) equal the previous tick's value for value gets the previous tick's
 outputs without running the network again: a standing ego in a still scene. The network
 is a pure function of its inputs (same inputs, same outputs:
 tests/test_student_controller.py), so records do not change.
@@ -69,7 +69,7 @@ class StudentAgent(AutonomousAgent):
         self._forget()
 
     def _forget(self) -> None:
-        self._last = None  # (x, target point, speed, path, speed waypoints) of the last network call
+        self._last = None  # (inputs as compared, path, speed waypoints) of the last network call
         self.frames = self.network_calls = 0  # predict calls, and those that ran the network
 
     def check_config(self, config: str | None) -> None:
@@ -86,15 +86,18 @@ class StudentAgent(AutonomousAgent):
         (9, 64, 64) uint8, target point (2,) [m] ego frame, speed [m/s]. Inputs equal to the
         previous call's, as the network sees them, give the previous outputs (module doc)."""
         x = binarize(bev)  # (9, 64, 64) bool
-        tp = np.array(target_point, dtype=np.float32)  # a copy: kept for the next tick's comparison
+        tp = np.array(target_point, dtype=np.float32)
         sp = np.float32(speed)
         self.frames += 1
+        # what the network sees, compared as NumPy's == would: the BEV's bytes (each 0 or 1),
+        # the float32 target point and speed as Python floats (about 5 us a tick less than
+        # np.array_equal on the arrays)
+        seen = (x.tobytes(), tp.tolist(), float(sp) if self.network.takes_speed else None)
         last = self._last
-        if (last is None or (self.network.takes_speed and sp != last[2])
-                or not np.array_equal(tp, last[1]) or not np.array_equal(x, last[0])):
+        if last is None or seen != last[0]:
             self.network_calls += 1
-            last = self._last = (x, tp, sp, *self.infer(x, tp, sp))
-        return last[3].copy(), last[4].copy()
+            last = self._last = (seen, *self.infer(x, tp, sp))
+        return last[1].copy(), last[2].copy()
 
     def infer(self, x: np.ndarray, target_point: np.ndarray, speed: float) -> tuple[np.ndarray, np.ndarray]:
         """One network call: x the binarised BEV (9, 64, 64) (bool or {0, 1}), target point (2,)

@@ -8,7 +8,7 @@ import numpy as np
 
 from controller.vehicle import EgoState
 from harness.sensors.bev import EGO_ROW, RES, SIZE, VEHICLES, BevRenderer
-from harness.sensors.bev_pixels import boxes_to_pixels, points_to_pixels
+from harness.sensors.bev_pixels import boxes_to_pixels, points_to_pixels, points_within
 from harness.sim.plan import build_plan
 from harness.sim.stop_signs import stop_passages
 from harness.sim.world import VEHICLE, Snapshot
@@ -60,6 +60,20 @@ def test_points_and_box_corners_give_numpys_pixels_bit_for_bit():
         got = boxes_to_pixels(xy, np.cos(yaw_k), np.sin(yaw_k), size, *raster(ex, ey, yaw))
         want = numpy_pixels(numpy_corners(xy, yaw_k, size).reshape(-1, 2), ex, ey, yaw).reshape(-1, 4, 2)
         np.testing.assert_array_equal(got, want)
+
+
+def test_the_route_near_the_ego_is_numpys_selection_bit_for_bit():
+    rng = np.random.default_rng(4)
+    for _ in range(300):
+        x, y = rng.uniform(-2000.0, 2000.0, 2)
+        pts = np.array([x, y]) + rng.normal(0.0, 40.0, size=(int(rng.integers(0, 600)), 2))
+        want = pts[np.hypot(pts[:, 0] - x, pts[:, 1] - y) < 45.0]
+        np.testing.assert_array_equal(points_within(pts, x, y, 45.0), want)
+    # on the circle (45 m east, north, 27-36-45) is out, a metre's millionth inside is in
+    x, y = 1234.5, -678.25
+    pts = np.array([[x + 45.0, y], [x, y + 45.0], [x - 27.0, y - 36.0], [x + 45.0 - 1e-6, y], [x, y]])
+    np.testing.assert_array_equal(points_within(pts, x, y, 45.0), pts[3:])
+    assert points_within(np.zeros((0, 2)), x, y, 45.0).shape == (0, 2)
 
 
 def test_a_pixel_by_hand():

@@ -87,3 +87,20 @@ def test_oriented_box_contacts():
                         np.array([[2.0, 2.0]]))[0]
     assert overlaps(ego, np.array([[2.45 + math.sqrt(2) - 0.01, 0.0]]), np.array([math.pi / 4]),
                     np.array([[2.0, 2.0]]))[0]
+
+
+def test_only_boxes_whose_circumcircles_meet_the_egos_are_tested_as_numpy_selects_them():
+    from harness.sim.contacts import _circles_meet
+    rng = np.random.default_rng(5)
+    for _ in range(500):
+        ex, ey, el, ew = *rng.uniform(-3000.0, 3000.0, 2), *rng.uniform(0.5, 12.0, 2)
+        k = int(rng.integers(0, 30))
+        table = np.column_stack([np.array([ex, ey]) + rng.normal(0.0, 8.0, size=(k, 2)), rng.uniform(0.3, 12.0, (k, 2))])
+        xy, size = table[:, :2], table[:, 2:]  # strided views, as a Snapshot's
+        d = xy - (ex, ey)
+        want = np.flatnonzero(np.hypot(d[:, 0], d[:, 1]) <= np.hypot(el, ew) / 2 + np.hypot(size[:, 0], size[:, 1]) / 2)
+        np.testing.assert_array_equal(_circles_meet(ex, ey, el, ew, xy, size), want)
+    # circumcircles that touch (radius 2.5 each, of 4 x 3 m boxes; centres 5 m apart) are tested
+    box = np.array([[4.0, 3.0]])
+    assert _circles_meet(0.0, 0.0, 4.0, 3.0, np.array([[3.0, 4.0]]), box).tolist() == [0]
+    assert _circles_meet(0.0, 0.0, 4.0, 3.0, np.array([[3.0, 4.0 + 1e-9]]), box).tolist() == []

@@ -21,6 +21,8 @@ use the very values NumPy's would.
 """
 from __future__ import annotations
 
+import math
+
 import numba
 import numpy as np
 
@@ -65,4 +67,22 @@ def boxes_to_pixels(xy: np.ndarray, cos: np.ndarray, sin: np.ndarray, size: np.n
             x = (xy[k, 0] + cos[k] * along) - sin[k] * across
             y = (xy[k, 1] + sin[k] * along) + cos[k] * across
             out[k, j, 0], out[k, j, 1] = _pixel(x - ex, y - ey, c, s, half, ego_row, res)
+    return out
+
+
+@numba.njit(_F[:, :](_F[:, :], _F, _F, _F), cache=True)
+def points_within(pts: np.ndarray, x: float, y: float, radius: float) -> np.ndarray:
+    """The (N, 2) world points [m] closer than ``radius`` [m] to (x, y), in order: NumPy's
+    ``pts[np.hypot(pts[:, 0] - x, pts[:, 1] - y) < radius]`` (libm's hypot, as NumPy's)."""
+    keep = np.empty(pts.shape[0], dtype=np.bool_)
+    n = 0
+    for i in range(pts.shape[0]):
+        keep[i] = math.hypot(pts[i, 0] - x, pts[i, 1] - y) < radius
+        n += keep[i]
+    out = np.empty((n, 2))
+    j = 0
+    for i in range(pts.shape[0]):
+        if keep[i]:
+            out[j, 0], out[j, 1] = pts[i, 0], pts[i, 1]
+            j += 1
     return out

@@ -294,7 +294,7 @@ def check_agent_setup(name: str, config: str | None, plan=None,
     with a route's ``plan`` (harness.sim.plan.GlobalPlan) ``set_global_plan``, ``setup``,
     ``sensors()`` validated, ``destroy()``; each call within ``timeout`` [s]. Any failure
     is BadInput naming the agent and the call (specs [] without a plan). The instance is
-    kept for routes driven in this process (``agent_for``)."""
+    not kept: each process that drives routes builds its own (``agent_for``)."""
     if name.endswith(".pt") and ":" not in name:
         if not Path(name).is_file():
             raise BadInput(f"--agent {name!r}: no such checkpoint file")
@@ -332,7 +332,6 @@ def check_agent_setup(name: str, config: str | None, plan=None,
         if isinstance(exc, (ValueError, OSError)) and step == "check_config()":
             raise BadInput(str(exc)) from None
         raise BadInput(f"agent {name!r}: {step} failed ({_reason(exc)})") from None
-    _built[name] = agent
     return name, config, [dict(s) for s in specs]
 
 

@@ -88,6 +88,7 @@ class BevRenderer:
                     cv2.polylines(layers[2], [pts], False, 255, thick, cv2.LINE_AA, shift=4)
         self.map = np.ascontiguousarray(layers.transpose(1, 2, 0))  # (h, w, 3) for warpAffine
         self._stop_lines: dict[tuple[str, int], np.ndarray] = {}
+        self._lines_of = None  # (plan, its light stop lines, its stop-sign lines): _route_lines
         self._last = None  # (pose, lights, props and stops key; plan; snapshot; frame) of the last drawing
         self.net = net
 
@@ -105,6 +106,15 @@ class BevRenderer:
                      for ln in edge.getLanes() if ln.allows("passenger")]
             self._stop_lines[key] = np.vstack(lines) if lines else np.zeros((0, 2))
         return self._stop_lines[key]
+
+    def _route_lines(self, plan) -> tuple[list[np.ndarray], list[np.ndarray]]:
+        """The stop lines (``_passage_lines``) of the plan's traffic-light passages and of
+        its stop-sign passages (harness.sim.stop_signs.stop_passages), in route order; kept
+        for the last plan drawn (a route's frames share one plan)."""
+        if self._lines_of is None or self._lines_of[0] is not plan:
+            self._lines_of = (plan, [self._passage_lines(p) for p in plan.passages if p.tls],
+                              [self._passage_lines(p) for p in stop_passages(plan)])
+        return self._lines_of[1], self._lines_of[2]
 
     def render(self, ego, snap, plan, lights: list[int], props: list, stops) -> np.ndarray:
         """(9, SIZE, SIZE) uint8 BEV around ego (x, y, yaw, world frame): ``draw``'s frame.
@@ -146,22 +156,24 @@ class BevRenderer:
         out[:len(_STATIC)] = crop.transpose(2, 0, 1)
         # the route and its run-on past the end, within 45 m (the raster's corners are 43 m away)
         near = points_within(plan.shown_xy, ego.x, ego.y, 45.0)
-        passages = [q for q in plan.passages if q.tls]
-        signs = stop_passages(plan)
-        if len(stops) != len(signs):
-            raise ValueError(f"{len(stops)} stop states for the {len(signs)} stop signs of route {plan.route_id}")
-        lines = {level: [self._passage_lines(p) for p, st in zip(passages, lights) if _TLS_LEVEL.get(st) == level]
+        light_lines, sign_lines = self._route_lines(plan)
+        if len(stops) != len(sign_lines):
+            raise ValueError(f"{len(stops)} stop states for the {len(sign_lines)} stop signs of route {plan.route_id}")
+        lines = {level: [ln for ln, st in zip(light_lines, lights) if _TLS_LEVEL.get(st) == level]
                  for level in (YELLOW, RED)}
-        lines[STOPS] = [self._passage_lines(p) for p, drawn in zip(signs, stops) if drawn]
+        lines[STOPS] = [ln for ln, drawn in zip(sign_lines, stops) if drawn]
         groups = [(snap.xy, snap.yaw, snap.size, snap.cls)]  # boxes, each group filled by its own calls
         if props:
             pa = np.array(props, dtype=float)
             groups.append((pa[:, :2], pa[:, 2], pa[:, 3:5], np.full(len(pa), STATIC)))
         raster = (ego.x, ego.y, c, s, SIZE / 2, float(EGO_ROW), RES)  # the pixel transform
         parts = [near, *lines[YELLOW], *lines[RED], *lines[STOPS]]
-        all_px = points_to_pixels(np.concatenate(parts), *raster)
-        ends = list(accumulate(len(p) for p in parts))
-        px = [all_px[a:b] for a, b in zip([0] + ends, ends)]  # the pixels of each part
+        if len(parts) == 1:  # no stop line to draw: the route's pixels alone
+            px = [points_to_pixels(near, *raster)]
+        else:
+            all_px = points_to_pixels(np.concatenate(parts), *raster)
+            ends = list(accumulate(len(p) for p in parts))
+            px = [all_px[a:b] for a, b in zip([0] + ends, ends)]  # the pixels of each part
         for xy, yaw, size, _ in groups:  # (K, 4, 2) pixels each; the kernel takes float64 (a float32
             yaw = np.asarray(yaw, dtype=float)  # snapshot's boxes are placed in float64 arithmetic)
             px.append(boxes_to_pixels(np.asarray(xy, dtype=float), np.cos(yaw), np.sin(yaw),

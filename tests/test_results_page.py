@@ -9,7 +9,9 @@ each arm's seeds in seed order, as reproduce pairs them. Every other number of t
 with a decimal point must appear in those rebuilt tables, in the stage-time table
 ``reproduce`` prints from the committed stages.json, or in a committed JSON, CSV or
 Markdown file of the run (the students' manifests, Table 2, the replay tables): a figure
-typed by hand that no committed file holds fails.
+typed by hand that no committed file holds fails. The whole numbers the page derives from
+those tables (steering jerk's MDE as a share of the reference's mean, the seeds that would
+detect a tenth of it) are computed again from the rebuilt tables.
 """
 from __future__ import annotations
 
@@ -18,6 +20,7 @@ import re
 from pathlib import Path
 
 import pytest
+from scipy import stats
 
 from model.arm_tables import stage_table
 from model.reproduce import ARMS, EVAL_SET
@@ -85,3 +88,47 @@ def test_every_other_figure_of_the_results_page_is_in_a_rebuilt_table_or_a_commi
     in_files = set(DECIMAL.findall(known))
     unknown = sorted(f for f in figures if f not in in_files and f.lstrip("+") not in in_files)
     assert not unknown, f"figures of docs/results.md that no committed file holds: {unknown}"
+
+
+def _cell(table: str, first: tuple[str, ...], column: str) -> str:
+    """The cell of ``column`` in the first row of Markdown tables whose first cells are
+    ``first`` (the first header that has ``column`` gives its place)."""
+    rows = [[c.strip() for c in line.strip("|").split("|")] for line in table.splitlines() if line.startswith("|")]
+    header = next(r for r in rows if column in r)
+    row = next(r for r in rows if tuple(r[:len(first)]) == first)
+    return row[header.index(column)]
+
+
+def _seeds_for(mde_n: float, n: int, effect: float) -> int:
+    """The fewest seeds whose MDE reaches ``effect``, for differences whose spread gives
+    ``mde_n`` with n seeds: (t_{.975,m-1} + t_{.8,m-1}) sd / sqrt(m) <= effect, sd read back
+    from the MDE (harness.scoring.paired.mde's formula, solved here on its own)."""
+    from scipy import stats
+
+    def t_sum(m: int) -> float:
+        return float(stats.t.ppf(0.975, m - 1) + stats.t.ppf(0.8, m - 1))
+    sd = mde_n * n ** 0.5 / t_sum(n)
+    return next(m for m in range(2, 10_000) if t_sum(m) * sd / m ** 0.5 <= effect)
+
+
+def test_the_steering_jerk_shares_and_seed_counts_the_page_derives_follow_from_its_tables(rebuilt):
+    """The page's "Minimum detectable effects" derives whole numbers the figure test above
+    cannot look up: each steering-jerk MDE as a share of the reference arm's mean, and the
+    seeds that would detect 10 % of it at the twenty seeds' spread. Both are computed here
+    from the rebuilt tables (the claims' MDE, Table 4's arm means). At the baseline the
+    79th seed brings the MDE 0.6 % under 10 % and the 78th leaves it 0.08 % over, more
+    than the tables' rounding to four digits moves it."""
+    text = " ".join(PAGE.read_text().split())  # the prose as one line: sentences wrap anywhere
+    claims = (rebuilt[EVAL_SET] / "claims.md").read_text()
+    table4 = (rebuilt[EVAL_SET] / "table4.md").read_text()
+    column = "steering jerk [1/s^2]"
+    mean = {arm: _cell(table4, (arm, "20"), column).split()[0] for arm in ("baseline", "control")}
+    seeds = {}
+    for ref in ("baseline", "control"):
+        mde_20 = float(_cell(claims, ("scimm", ref), "steering jerk lower").split("MDE ")[1].split(",")[0])
+        share = round(100 * mde_20 / float(mean[ref]))
+        said = {"baseline": f"{mde_20} 1/s^2 for SC-IMM against the baseline, about {share} % of the baseline's",
+                "control": f"{mde_20} against the control, about {share} % of the control's"}[ref]
+        assert f"{said} {mean[ref]}" in text
+        seeds[ref] = _seeds_for(mde_20, 20, 0.1 * float(mean[ref]))
+    assert f"would take {seeds['baseline']} seeds at this spread, against the control {seeds['control']} (" in text

@@ -119,7 +119,7 @@ EMA = 0.0  # decay of the weight average (Ema); 0 = none
 THREADS = 2  # torch threads (fixed, so results do not depend on the machine's core count)
 # torch's deterministic mode also fills every new tensor with NaN, so that a kernel reading
 # memory it never wrote shows; the student's kernels read none (the weights are equal bit for
-# bit with and without: tests/test_train.py), and the fills cost about 4 % of a one-thread step
+# bit with and without: tests/test_train.py), and the fills cost about 5 % of a one-thread step
 FILL_UNINITIALIZED = False
 
 

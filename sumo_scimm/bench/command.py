@@ -150,7 +150,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     bn.add_argument("--soak", type=int, default=0, metavar="N",
                     help="also run at least N route runs of --routes (whole passes over the set) on --workers "
                          "and report worker memory over them (docs/design.md §11: --soak 500 --routes town12_short, "
-                         "about 4 min per 100 routes with the student)")
+                         "about 1-2 min per 100 routes with the student)")
     bn.add_argument("--reproduce", metavar="DIR",
                     help="also print the wall time a finished 'sumo-scimm reproduce --out DIR' recorded")
     bn.add_argument("--arm", metavar="DIR",

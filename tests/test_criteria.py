@@ -1,7 +1,10 @@
-"""Each Leaderboard criterion provoked once and avoided once, in real libsumo:
-the episode runs, then detection reads its log, as in `sumo-scimm eval`."""
+"""The Leaderboard's criteria in real libsumo: the episode runs, then detection reads its log,
+as in `sumo-scimm eval` (red light, stop sign, vehicle and pedestrian collisions, route
+deviation, blocked, minimum speed, outside lanes); the route timeout's budget by hand on a
+straight plan."""
 from __future__ import annotations
 
+from types import SimpleNamespace
 
 import libsumo
 import numpy as np
@@ -10,7 +13,9 @@ import pytest
 from controller.vehicle import LENGTH, WIDTH, EgoState
 from harness.sim.contacts import overlaps
 from harness.loop.episode import run_episode
+from harness.scoring.criteria import RouteTimeout
 from harness.scoring.infractions import collisions, detect
+from harness.scoring.statuses import FAILED_TIMEOUT
 from harness.sim.plan import build_plan
 from harness.sim.world import World
 from scenarios import set_path
@@ -124,3 +129,20 @@ def test_min_speed_final_checkpoint_is_emitted_twice_on_a_normal_end(tmp_path):
     pct = [float(m.split()[3].rstrip("%")) for m in msgs]
     assert all(p < 100 for p in pct)
     assert all(m.startswith("Average speed is ") and m.endswith("% of the surrounding traffic's one") for m in msgs)
+
+
+def test_route_timeout_budget_by_hand():
+    """RouteTimeout's budget: 300 s plus, for every metre the route index passes, 1 m /
+    (0.1 x the speed limit at the point reached). On a straight 100 m plan at 10 m/s for
+    its first 50 points and 5 m/s after: 300 + 50 / 1 + 50 / 0.5 = 450 s once the ego has
+    passed the end; before it moves, 300 s."""
+    n = 101
+    plan = SimpleNamespace(xy=np.column_stack([np.arange(n, dtype=float), np.zeros(n)]), yaw=np.zeros(n),
+                           s=np.arange(n, dtype=float), speed_limit=np.where(np.arange(n) <= 50, 10.0, 5.0))
+    still = RouteTimeout(plan)
+    assert still.update(-1.0, 0.0, 300.0) is None and still.update(-1.0, 0.0, 300.01) == FAILED_TIMEOUT
+    moving = RouteTimeout(plan)
+    for k in range(n):  # 1 m a step, always inside the Leaderboard's window of 4 points
+        assert moving.update(k + 0.5, 0.0, 0.0) is None
+    assert moving.budget == 450.0
+    assert moving.update(100.5, 0.0, 450.0) is None and moving.update(100.5, 0.0, 450.01) == FAILED_TIMEOUT

@@ -94,7 +94,7 @@ def test_the_criterion_reads_the_same_state():
     assert stop_signs({**log, "v": np.array([5.0, 0.0, 2.0, 5.0])}, plan) == []  # stood in the zone
     ran = stop_signs({**log, "v": np.array([5.0, 2.0, 2.0, 5.0])}, plan)
     assert len(ran) == 1 and ran[0].startswith(f"Agent ran a stop with id={p.junction} at ")
-    assert stop_signs({**log, "v": np.array([0.0, 2.0, 2.0, 5.0])}, plan) != []  # stood before the zone only
+    assert stop_signs({**log, "v": np.array([0.0, 2.0, 2.0, 5.0])}, plan) == ran  # stood before the zone only
     early = {k: a[:3] for k, a in log.items()}  # never left the zone: no verdict
     assert stop_signs({**early, "v": np.array([5.0, 2.0, 2.0])}, plan) == []
 

@@ -45,13 +45,17 @@ def test_straight_path_at_the_current_speed_gives_zero_steer_and_steady_throttle
 
 
 def test_speed_pid_values_by_hand():
+    assert (SPEED_KP, SPEED_KI, SPEED_KD) == (1.75, 1.0, 2.0)  # SimLingo's speed PID gains
     c = SimLingoController()
     first = c.step(STRAIGHT, wps_at(5.0), 4.5)  # error 0.5 m/s
     # Kp e + Ki mean(window of 20: one 0.5) + Kd (0.5 - 0) = 0.875 + 0.025 + 1.0 -> clipped to 1
     assert first.throttle == 1.0
     assert first.brake == 0.0
     second = c.step(STRAIGHT, wps_at(5.0), 4.5)
-    assert second.throttle == pytest.approx(SPEED_KP * 0.5 + SPEED_KI * 1.0 / 20 + SPEED_KD * 0.0)  # 0.925
+    # SimLingo's gains (Kp 1.75, Ki 1.0, Kd 2.0): 1.75 x 0.5 + 1.0 x (0.5 + 0.5) / 20 + 2.0 x 0
+    assert second.throttle == pytest.approx(0.925, abs=1e-12)
+    small = SimLingoController().step(STRAIGHT, wps_at(5.0), 4.8)  # error 0.2 m/s, not clipped
+    assert small.throttle == pytest.approx(1.75 * 0.2 + 1.0 * 0.2 / 20 + 2.0 * 0.2, abs=1e-12)  # 0.76
     big = SimLingoController().step(STRAIGHT, wps_at(8.0), 2.0)  # error clipped to 1 m/s
     assert big.throttle == 1.0
 

@@ -17,7 +17,8 @@ from +x) of the centre of mass; body-frame velocity vx (forward), vy (left) [m/s
 rate r [rad/s]; engine speed w_e [rad/s]; the gear (1..5) and the shift in progress; the
 applied steer, throttle and brake (after CARLA's input rates).
 
-One tick (DT = 0.05 s) = the inputs, then SUBSTEPS explicit-Euler sub-steps of h = DT/SUBSTEPS.
+One tick (DT = 0.05 s) = the inputs, then SUBSTEPS semi-implicit Euler sub-steps of h = DT/SUBSTEPS
+(the velocities first, then the pose moved with the new velocities).
 
 1. Inputs (CARLA's actuators). The command moves towards the request at a limited rate
    (Unreal's vehicle input rates): away from 0 at RISE, back towards 0 at FALL [1/s]::
@@ -48,7 +49,7 @@ One tick (DT = 0.05 s) = the inputs, then SUBSTEPS explicit-Euler sub-steps of h
        F_brake = brake * 4 MAX_BRAKE_TORQUE / R                   (brake continuous in [0, 1])
        F_roll  = 4 WHEEL_DAMPING w_w / R                          (wheel bearing damping)
        F_drag  = 1/2 AIR_DENSITY DRAG_COEFFICIENT DRAG_AREA vx^2
-       m dvx/dt = F_drive - F_brake - F_roll - F_drag - F_yf sin(delta) + m vy r
+       m dvx/dt = F_drive - F_brake - F_roll - F_drag - w F_yf sin(delta) + w m vy r   (w: the blend of 5)
        vx >= 0 (no reverse); at rest, the resisting forces hold the car unless F_drive beats them.
 
 5. Lateral: a dynamic single-track (bicycle) model with linear tyres, blended into the
@@ -284,7 +285,7 @@ def _lateral(st: np.ndarray, h: float, delta: float, dvy: float, dr: float) -> N
 
 @_jit
 def _substep(st: np.ndarray, h: float) -> None:
-    """One explicit-Euler sub-step of h [s]: 2 to 6 of the docstring."""
+    """One semi-implicit Euler sub-step of h [s]: 2 to 6 of the docstring."""
     _gearbox(st, h)
     f_drive = _engine(st, h)
     delta = -st[STEER] * max_steer(hypot(st[VX], st[VY]))

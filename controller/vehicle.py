@@ -6,7 +6,7 @@ agent's own steering errors show: nothing pulls the ego back to a lane centre.
 Model (constants fitted for CARLA's default car in the PDM-Lite / World-on-Rails
 kinematic bicycle model, docs/design.md §8.4; our own implementation):
 
-    delta = STEER_TO_WHEEL * steer                    front wheel angle [rad]
+    delta = -STEER_TO_WHEEL * steer                   front wheel angle [rad], CCW-positive (steer > 0 = right)
     beta  = atan(LR / (LF + LR) * tan(delta))         slip angle at the centre [rad]
     x    += v cos(yaw + beta) dt,  y += v sin(yaw + beta) dt
     yaw  += (v / LR) sin(beta) dt

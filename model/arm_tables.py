@@ -247,7 +247,7 @@ def write_set_tables(runs: dict[str, list[Path]], out: Path,
                      seeds: dict[str, list[int]] | None = None) -> tuple[str, dict[str, float]]:
     """Every table of the module docstring for the arms' runs on one evaluation set, written
     to ``out`` (``table{3,4}[_common][_vs_control]``, ``b2d``, ``per_hazard``,
-    ``claims[_common]``, ``hazard_ds``, as .csv and .md); returns their Markdown and {arm:
+    ``claims[_common]`` as .csv and .md, ``hazard_ds`` as .md); returns their Markdown and {arm:
     mean DS} (Table 3's). ``seeds``: each arm's seed index of each run (``paired_tables``)."""
     from harness.scoring.b2d_tables import b2d_tables
     text, rows = paired_tables(runs, out, seeds)

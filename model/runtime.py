@@ -2,7 +2,7 @@
 
 Training runs in torch (model.train); driving runs the same network, exported in memory at
 batch 1 with torch's ONNX exporter and executed by ONNX Runtime on one thread. Why: the
-network is small (about 3 M multiply-adds a frame), so in torch its cost is the dispatch of
+network is small (about 6 M multiply-adds a frame), so in torch its cost is the dispatch of
 about 100 ATen calls, not their arithmetic: 0.76-0.88 ms a frame in a TorchScript trace on
 a 2-core Intel Xeon against 0.26 ms in ONNX Runtime, which fuses the graph and
 runs it without per-operator Python or dispatcher overhead (docs/student.md, the

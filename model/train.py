@@ -10,7 +10,8 @@ learning-rate schedule, validation loss averaged under no_grad after every epoch
 epoch kept) -> save the chosen epoch's weights.
 
 Schedule (fixed, the same for every arm): AdamW (betas 0.9/0.95, weight decay 0.01 on
-matrices and kernels only), batch BATCH (``--batch``), learning rate linear warm-up over
+every tensor of two or more dimensions: weight matrices, kernels, the learned queries
+and position embeddings), batch BATCH (``--batch``), learning rate linear warm-up over
 WARMUP_STEPS to LR, then cosine decay to MIN_LR at the last step; gradient norm clipped to
 1.0. With ``ema`` (``--ema``, off by default) an exponential moving average of the weights
 (Ema) is what is validated, kept and saved (docs/student.md: it did not help on `val`). Samples

@@ -6,12 +6,12 @@ ego pointing up at row EGO_ROW, column SIZE/2: 36 m ahead, 12 m behind, 24 m to 
 side. 64 px is chosen for training speed (the student must train at >= 500 samples/s on
 2 cores, docs/design.md §3, §11: 64x64 ~670 samples/s, 96x96 ~250).
 
-Channels (uint8; dynamic ones 0 or 255, static ones anti-aliased at their edges):
+Channels (uint8; dynamic ones 0 or 255 (LIGHTS: 128 for yellow), static ones anti-aliased at their edges):
 
     0 ROAD       drivable area (lanes cars may use, junction areas)
     1 LANES      lane borders (markings and road edges)
     2 WALK       sidewalks, crossings, walking areas
-    3 ROUTE      the route ahead, 2 m wide
+    3 ROUTE      the route within 45 m of the ego, behind and ahead (with its run-on past the end), 2 m wide
     4 VEHICLES   other vehicles
     5 WALKERS    pedestrians
     6 OBSTACLES  static obstacles (parked cars, accidents, construction)

@@ -150,8 +150,8 @@ class ParkedObstacle(HazardActor):
 
 @actor
 class HardBreakRoute(HazardActor):
-    """A leader inserted ``gap`` m ahead of the ego at the trigger brakes at ``decel``
-    [m/s^2] to a stop at the site, stands HOLD_TIME s, then drives on."""
+    """A leader inserted ``gap`` m ahead of the ego at the trigger starts braking at ``decel``
+    [m/s^2] when it reaches the site, stands HOLD_TIME s, then drives on."""
 
     def __init__(self, hazard: Hazard, plan: GlobalPlan, net: sumolib.net.Net, rng: np.random.Generator,
                  n: int):

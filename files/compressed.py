@@ -24,13 +24,14 @@ def stored(path: Path) -> Path | None:
 
 
 def read_text(path: Path) -> str:
-    """The text of ``path``, or of ``path.gz`` decompressed when only that exists (UTF-8).
-    OSError (FileNotFoundError naming ``path``) when neither is a file; a damaged
-    ``.gz`` raises OSError (gzip.BadGzipFile) too."""
+    """The text of ``path``, or of ``path.gz`` when only that exists (UTF-8); a file whose
+    name ends in ``.gz``, given or found, is decompressed. OSError (FileNotFoundError naming
+    ``path``) when neither is a file; a damaged ``.gz`` raises OSError (gzip.BadGzipFile)
+    or EOFError (cut short)."""
     found = stored(path)
     if found is None:
         raise FileNotFoundError(2, "No such file (nor a .gz of it)", str(path))
-    if found != Path(path):  # only the .gz exists
+    if found.name.endswith(".gz"):
         return gzip.decompress(found.read_bytes()).decode()
     return found.read_text()
 

@@ -27,7 +27,7 @@ import zlib
 from pathlib import Path
 
 import numpy as np
-from tqdm import tqdm
+from harness.common.progress import progress
 
 from files.atomic import write_atomic
 from scimm.teacher import episode_files
@@ -113,10 +113,10 @@ def build_cache(folder: Path, cache_dir: Path, views: int, workers: int = 2, dig
     desc = f"BEV cache {folder.name} ({views} view{'s' * (views > 1)})"
     if workers > 1:
         with mp.get_context("spawn").Pool(workers) as pool:
-            for part in tqdm(pool.imap(_render_job, jobs), total=len(jobs), desc=desc, unit="episode", disable=None):
+            for part in progress(pool.imap(_render_job, jobs), total=len(jobs), desc=desc, unit="episode"):
                 parts.append(part)
     else:
-        parts = [_render_job(j) for j in tqdm(jobs, desc=desc, unit="episode", disable=None)]
+        parts = [_render_job(j) for j in progress(jobs, desc=desc, unit="episode")]
     arrays = {k: np.concatenate([p[k] for p in parts]) for k in parts[0]} if parts else {}
     arrays["episode"] = np.concatenate([np.full(len(p["speed"]), i, np.int32) for i, p in enumerate(parts)])
     arrays["frame"] = np.concatenate([np.arange(len(p["speed"]), dtype=np.int32) for p in parts])

@@ -28,7 +28,7 @@ from dataclasses import replace
 from pathlib import Path
 from time import sleep
 
-from tqdm import tqdm
+from harness.common.progress import progress
 
 from model.train import TrainConfig
 
@@ -55,7 +55,7 @@ def train_side_by_side(cfgs: list[TrainConfig], processes: int = SIDE_BY_SIDE) -
     steps = ctx.RawArray("q", len(cfgs))
     total = sum(min(c.epochs * c.epoch_steps, c.max_steps or c.epochs * c.epoch_steps) for c in cfgs) \
         if all(c.epoch_steps for c in cfgs) else None  # 0 = the whole draw: not known before loading
-    bar = tqdm(total=total, desc=f"train {len(cfgs)} students, {processes} at a time", unit="step", disable=None)
+    bar = progress(total=total, desc=f"train {len(cfgs)} students, {processes} at a time", unit="step")
     pool = ctx.Pool(min(processes, len(cfgs)), initializer=_init, initargs=(steps,))
     try:
         pending = [pool.apply_async(_train_one, (i, c)) for i, c in enumerate(cfgs)]

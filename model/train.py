@@ -95,6 +95,7 @@ from tqdm import tqdm
 
 from files.atomic import write_atomic
 from harness.common.errors import BadInput
+from harness.common.progress import progress
 from harness.runs.provenance import machine
 from model.checkpoint import HISTORY_NAME, WEIGHTS_NAME, git_commit, save_checkpoint
 from model.data import TEACHERS, StudentData
@@ -300,7 +301,7 @@ def run_epoch(model: Student, opt: torch.optim.Optimizer, data: StudentData,
             sums[k] = sums.get(k, 0.0) + v.item()
         step, n = step + 1, n + 1
         bar.update(1)
-        bar.set_postfix(loss=f"{terms['loss'].item():.3f}")
+        bar.set_postfix(loss=f"{terms['loss'].item():.3f}", refresh=False)  # drawn with the next update
         if on_step is not None:
             on_step()
     return {k: v / max(1, n) for k, v in sums.items()}, step
@@ -343,7 +344,7 @@ def train(cfg: TrainConfig, on_step: Callable[[], None] | None = None) -> Path:
                f"teacher {cfg.teacher}, seed {cfg.seed}")
     # loop: one epoch, its validation loss, the best epoch kept (an early stop with patience)
     step, history, best, stop = 0, [], Best(), "epochs"
-    bar = tqdm(total=total, desc=f"train ({cfg.teacher})", unit="step", disable=None)
+    bar = progress(total=total, desc=f"train ({cfg.teacher})", unit="step")
     for epoch, plan in enumerate(plans, start=1):
         te = time.perf_counter()
         bar.set_description(f"train ({cfg.teacher}) epoch {epoch}/{cfg.epochs}")

@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
-from tqdm import tqdm
+from harness.common.progress import progress
 
 from files.atomic import write_atomic
 from harness.common.errors import BadInput
@@ -49,7 +49,7 @@ def make_teachers(folder: Path, files: list[Path], methods: tuple[str, ...],
     cfg = IMMConfig(path_state=path_state)
     written = {}
     for method in methods:
-        with tqdm(total=len(files), desc=f"teacher {method}", unit="episode", disable=None) as bar:
+        with progress(total=len(files), desc=f"teacher {method}", unit="episode") as bar:
             labels = tch.teach(files, method, cfg, progress=bar.update)
         written[method] = tch.write_teacher(folder, method, labels, cfg, files)
         log.info("%s: %d episodes -> %s", method, len(labels), written[method])

@@ -78,6 +78,8 @@ def _os_error(exc: OSError) -> str:
         fix = "free some space, then run the command again"
     elif exc.errno in (errno.EACCES, errno.EPERM, errno.EROFS):
         fix = "make the path writable, or choose another one"
+    elif exc.errno == errno.EPIPE:
+        fix = "the program reading the output closed it first"
     else:
         fix = "check the path: its folder must exist or be creatable, and be writable"
     return f"{exc.strerror or exc}{where} ({fix})"
@@ -92,6 +94,7 @@ def main(argv: list[str] | None = None) -> int:
     in_main = threading.current_thread() is threading.main_thread()
     previous = signal.signal(signal.SIGTERM, _raise_terminated) if in_main else None
     _log_to_stderr()
+    args = None
     try:
         args = build_parser().parse_args(argv)
         return args.func(args)
@@ -105,7 +108,9 @@ def main(argv: list[str] | None = None) -> int:
         if isinstance(exc, Terminated):
             print("sumo-scimm: terminated (SIGTERM)", file=sys.stderr)
             return 128 + signal.SIGTERM
-        print("sumo-scimm: interrupted", file=sys.stderr)
+        resumable = getattr(args, "resume", None) is not None  # eval and collect keep what they wrote
+        print("sumo-scimm: interrupted" + ("; the same command with --resume goes on from here" if resumable
+                                          else ""), file=sys.stderr)
         return 130
     finally:
         if in_main and previous is not None:

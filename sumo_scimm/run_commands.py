@@ -4,13 +4,16 @@ function (harness.runs.evaluate, harness.loop.render, harness.scoring) and print
 from __future__ import annotations
 
 import argparse
+import gzip
 import json
 import math
 import sys
 import zipfile
+import zlib
 from pathlib import Path
 
 from files.atomic import write_atomic
+from files.compressed import read_text, stored
 from harness.common.errors import BadInput
 from harness.loop.deadline import AGENT_TIMEOUT
 from sumo_scimm.options import add_agent_options, add_backend_options, add_vehicle_option, backend_of, out_arg, seed_arg
@@ -93,15 +96,17 @@ def _render_overlay(args: argparse.Namespace) -> int:
 def _score(args: argparse.Namespace) -> int:
     from harness.scoring.scores import NOT_RESULTS, ScoreError, rescore_results, results_text
     path = Path(args.results)
-    if not path.is_file():
+    if stored(path) is None:
         raise BadInput(f"{path}: no such results file")
     notes: list[str] = []
     try:
-        data = json.loads(path.read_text())
+        data = json.loads(read_text(path))  # plain or gzip-compressed (files.compressed)
         out = rescore_results(data, args.rules, notes)
         text = results_text(out) + "\n"  # numbers checked finite (harness.scoring.validate); others: ValueError
     except (json.JSONDecodeError, UnicodeDecodeError, RecursionError) as exc:
         raise BadInput(f"{path}: not JSON ({exc})") from None
+    except (gzip.BadGzipFile, EOFError, zlib.error) as exc:  # a damaged .gz
+        raise BadInput(f"{path}: not a readable gzip file ({exc})") from None
     except ScoreError as exc:  # one complete sentence
         raise BadInput(f"{path}: {exc}") from None
     except (KeyError, TypeError, ValueError, IndexError, AttributeError, OverflowError) as exc:
@@ -109,6 +114,7 @@ def _score(args: argparse.Namespace) -> int:
     for note in notes:
         print(f"note: {note}", file=sys.stderr)
     if args.out:
+        Path(args.out).parent.mkdir(parents=True, exist_ok=True)  # as every command's --out
         write_atomic(Path(args.out), text)
         g = out["_checkpoint"]["global_record"]
         done, total = out["_checkpoint"]["progress"][:2]
@@ -131,6 +137,10 @@ def _report(args: argparse.Namespace) -> int:
             print(write_set_tables(arms, Path(args.out))[0])
     except ReportError as exc:
         raise BadInput(str(exc)) from None
+    short = [str(f) for folders in arms.values() for f in folders if stored(f / "records.jsonl") is None]
+    if short:  # an archive that keeps records.csv and results.json alone
+        print(f"note: no records.jsonl in {short[0]}" + (f" and {len(short) - 1} more" if len(short) > 1 else "")
+              + ": Bench2Drive's tables and the DS per hazard type need it and were not written", file=sys.stderr)
     return 0
 
 
@@ -206,7 +216,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     r.set_defaults(func=_render)
 
     sc = sub.add_parser("score", help="recompute the scores of a Leaderboard results JSON (ours or CARLA's)")
-    sc.add_argument("results", help="results JSON (the leaderboard's --checkpoint file)")
+    sc.add_argument("results", help="results JSON (the leaderboard's --checkpoint file), plain or .gz")
     sc.add_argument("--rules", default="lb2.0", choices=RULES, help="default lb2.0")
     sc.add_argument("--out", help="write the rescored JSON here (default: print it)")
     sc.set_defaults(func=_score)

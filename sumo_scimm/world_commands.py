@@ -6,10 +6,9 @@ import argparse
 import json
 from pathlib import Path
 
-from tqdm import tqdm
-
 from harness.common.errors import BadInput
 from harness.common.lock import FolderLock
+from harness.common.progress import progress
 from sumo_scimm.options import EXIT_BAD_INPUT, seed_arg
 
 
@@ -21,9 +20,10 @@ def _nets_build(args: argparse.Namespace) -> int:
         raise BadInput("--seed needs --town (each town has its own default seed)")
     out = Path(args.out) if args.out else sumo_nets.NETS_DIR
     with FolderLock(out):  # one command per output folder (harness.common.lock)
-        for town in tqdm(towns, desc="netconvert", unit="town", disable=None):
+        bar = progress(towns, desc="netconvert", unit="town")
+        for town in bar:
             path = sumo_nets.build(town, args.seed, out)
-            tqdm.write(f"{town}: {path}")
+            bar.write(f"{town}: {path}")  # above the bar on a terminal
     return 0
 
 
@@ -45,10 +45,12 @@ def _routes_make(args: argparse.Namespace) -> int:
         raise BadInput(f"unknown set {args.set!r} (buildable: {', '.join(SETS)})")
     spec = SETS[args.set]
     total = sum(n for _, n in spec.towns)
-    with tqdm(total=total, desc=f"routes {args.set}", unit="route", disable=None) as bar:
+    with progress(total=total, desc=f"routes {args.set}", unit="route") as bar:
         routes = make_set(args.set, args.seed, progress=bar.update)
     meta = {"set": args.set, "seed": str(spec.seed if args.seed is None else args.seed),
             "min_length": f"{spec.length[0]:g}", "max_length": f"{spec.length[1]:g}"}
+    if args.out:
+        Path(args.out).parent.mkdir(parents=True, exist_ok=True)  # as every command's --out
     out = write_routes(Path(args.out) if args.out else set_path(args.set), meta, routes)
     print(f"{len(routes)} routes -> {out}")
     return 0
@@ -89,7 +91,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     routes = sub.add_parser("routes", help="build, check or list route sets")
     rsub = routes.add_subparsers(dest="action", required=True, parser_class=type(routes))
     m = rsub.add_parser("make", help="build a route set from its seeded builder")
-    m.add_argument("--set", required=True, help="set name (town12_short, town12_smoke, train, val)")
+    m.add_argument("--set", required=True, help="set name (town12_short, town12_smoke, train, val, town12_second)")
     m.add_argument("--seed", type=seed_arg, help="builder seed (default: the set's own)")
     m.add_argument("--out", help="output file (default: scenarios/<set>.xml)")
     m.set_defaults(func=_routes_make)

@@ -371,3 +371,18 @@ def test_render_draws_the_waypoint_overlay_of_eval_runs(one_route_run, tmp_path)
         code, printed = _cli(["render", *argv])
         _one_line_exit_2(code, printed, *words)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["fig5.png"]
+
+
+def test_score_reads_a_gzip_compressed_results_file_and_refuses_a_damaged_one(one_route_run, tmp_path):
+    """The experiment's records are kept gzip-compressed (files.compressed): score reads
+    them as it reads the plain file, into a folder it creates; a cut-short .gz is one line."""
+    from files.compressed import gzip_copy
+    packed = tmp_path / "results.json.gz"
+    gzip_copy(one_route_run / "results.json", packed)
+    assert _cli(["score", str(one_route_run / "results.json"), "--out", str(tmp_path / "plain.json")])[0] == 0
+    assert _cli(["score", str(packed), "--out", str(tmp_path / "new" / "packed.json")])[0] == 0
+    assert (tmp_path / "new" / "packed.json").read_text() == (tmp_path / "plain.json").read_text()
+    cut = tmp_path / "cut.json.gz"
+    cut.write_bytes(packed.read_bytes()[:60])
+    code, printed = _cli(["score", str(cut)])
+    _one_line_exit_2(code, printed, "not a readable gzip file")

@@ -8,6 +8,7 @@ import libsumo
 import pytest
 
 import sumo_nets
+from sumo_scimm.cli import main
 from scenarios import SETS, set_path
 from scenarios.check import check_file, check_route
 from scenarios.hazards import HAZARDS
@@ -111,3 +112,10 @@ def test_route_lengths_agree_with_sumo_driving_distance(short_routes):
         assert compared >= 35
     finally:
         libsumo.close()
+
+
+def test_routes_make_help_names_every_buildable_set(capsys):
+    with pytest.raises(SystemExit):
+        main(["routes", "make", "--help"])
+    shown = " ".join(capsys.readouterr().out.split())
+    assert f"set name ({', '.join(SETS)})" in shown

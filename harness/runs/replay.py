@@ -48,11 +48,11 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-from tqdm import tqdm
 
 from files.atomic import savez_atomic, write_atomic
 from harness.common.errors import BadInput
 from harness.common.lock import FolderLock
+from harness.common.progress import progress as show_progress
 from harness.loop.agent import agent_call, agent_for, check_agent_setup, forget_agent, split_output, validate_sensors
 from harness.loop.deadline import AGENT_TIMEOUT, deadline_alarm, step_with_deadline
 from harness.loop.episode import sensor_inputs
@@ -272,7 +272,7 @@ def run_replay(jobs: list[ReplayJob], workers: int | None = None, progress: bool
     the route is not replayed again."""
     workers = min(workers or os.cpu_count() or 1, len(jobs))
     rows: list[dict] = []
-    bar = tqdm(total=len(jobs), desc="replay", unit="route", disable=not progress or None)
+    bar = show_progress(total=len(jobs), desc="replay", unit="route", show=progress)
 
     def emit(job: ReplayJob, out: list[dict]) -> None:
         rows.extend(out)

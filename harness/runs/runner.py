@@ -50,11 +50,11 @@ import os
 from pathlib import Path
 
 import numpy as np
-from tqdm import tqdm
 
 from files.atomic import signals_held, write_atomic
 from harness.common.errors import BadInput
 from harness.common.lock import check_folder, folder_identity, open_nofollow
+from harness.common.progress import progress
 from harness.runs.jobs import Job, crash_record, hung_record, release_freed_memory, run_job_safely, worker_stats
 from harness.runs.workers import HUNG, run_workers
 from harness.scoring.records import parse_record, record_line
@@ -205,8 +205,8 @@ def run_eval(jobs: list[Job], out: Path, workers: int | None, resume: bool, show
         have = {r["key"] for r in done}
         todo = [j for j in jobs if j.key not in have]
         records = list(done)
-        bar = tqdm(total=len(jobs), initial=len(jobs) - len(todo), desc="eval", unit="route",
-                   disable=not show_progress or None)
+        bar = progress(total=len(jobs), initial=len(jobs) - len(todo), desc="eval", unit="route",
+                       show=show_progress)
         append = os.O_WRONLY | os.O_APPEND
         with (open(open_nofollow(rec_path, append), "ab", buffering=0) as f,
               open(open_nofollow(workers_path, append), "ab", buffering=0) as wf):

@@ -32,7 +32,7 @@ def one_route_run(tmp_path_factory) -> Path:
 
 @pytest.mark.parametrize("change, words", [
     (["--agent", "expert"], ["agent 'expert'", "'route_follower'"]),
-    (["--seed", "3"], ["seed"]),
+    (["--seed", "3"], ["seed", "another --seed than the run's"]),
     (["--routes-subset", "1"], ["route runs differ"]),
     (["--rules", "b2d"], ["rules 'b2d'"]),
 ])

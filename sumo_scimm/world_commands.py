@@ -60,7 +60,8 @@ def _routes_check(args: argparse.Namespace) -> int:
     from scenarios.check import check_file
     n, problems = check_file(Path(args.file))
     for p in problems:
-        print(f"{args.file}: {p}")
+        text = str(p)  # file-level problems name the file already
+        print(text if text.startswith(f"{args.file}: ") else f"{args.file}: {text}")
     if problems:
         return EXIT_BAD_INPUT
     print(f"{args.file}: {n} routes OK")

@@ -4,7 +4,8 @@ paper §III.2-3, eq. 8-9), in one readable config.
 State and observation (scimm.pathspeed, paper eq. 3), frame period dt = 0.25 s:
 
     x = [c0, c1, c2, v, a]   path heading at the ego [rad], curvature [1/m], half curvature
-                             rate [1/m^2], speed [m/s], acceleration [m/s^2]; H = I.
+                             rate [1/m^2] (path_state "ego"; "plan": below), speed [m/s],
+                             acceleration [m/s^2]; H = I.
 
 Modes, in this order (index 0..4), each a linear transition F_j and base process noise Q0_j:
 
@@ -31,9 +32,12 @@ f(s_t) in [0, 1] (``features``); then
                                                 bonus for staying in a mode the cues support
     gamma_t^j  = exp(sum_f f_t W_gamma[f, j])   process-noise scale of mode j (> 0)
 
-The modes' states live in the ego frame of their frame; the predict step first carries
-them into the current frame with the ego's recorded motion (scimm.ego), the same for
-every mode, so F_j only says how the path and the speed profile themselves change.
+With ``path_state="ego"`` the modes' states live in the ego frame of their frame; the
+predict step first carries them into the current frame with the ego's recorded motion
+(scimm.ego), the same for every mode, so F_j only says how the path and the speed profile
+themselves change. With ``path_state="plan"`` (the default) c0, c1, c2 are instead the
+teacher's lateral offset quadratic from the expert's previous plan [m, -, 1/m], rebased
+and carried along that plan (scimm.planref); v and a are as above.
 
 Fixed-IMM is A = 0, gamma = 1 (``fixed_adjustment``). Every number was chosen on the `val`
 dataset only (docs/teacher.md).
@@ -156,7 +160,8 @@ class IMMConfig:
         [0.010, 0.0020, 0.0001],   # Avoidance: the bypass is re-planned
         [0.010, 0.0020, 0.0001],   # Recovery: as Avoidance
     ]))
-    # plan_R_path: sd of the fitted plan change, x 1.9: half of Deceleration's Q (the teacher
+    # plan_R_path: sd of the fitted plan change, x 1.9: c0 half of Deceleration's Q, c1 and c2
+    # a little less than half (0.0005, 0.000025 against 0.0012, 0.00007; the teacher
     # follows a lasting change within a few frames); with R twice this the Fixed-IMM's Cruise
     # path moved 1.14 x the plans' in the world on `val`, with this 1.07 x (docs/teacher.md)
     plan_R_path: np.ndarray = field(default_factory=lambda: 1.9 * np.array([0.0015, 0.0005, 0.000025]))

@@ -20,7 +20,7 @@ any angle) is exactly ``psi = c0 + c1 s``. The dataset's path always starts at t
 Discretisation (the same in the fit and the inverse, so the round trip is exact):
 the 20 path points are at s = 0, 1, ..., 19 m; the chord from point k to k+1 has length
 1 m and heading psi(k + 1/2) (exact for a circular arc, whose chord points along the
-tangent at its midpoint; the chord is 1 - 1/(24 R^2) m long, a 0.1 % shortfall at R = 4 m).
+tangent at its midpoint; the chord is 1 - 1/(24 R^2) m long, a 0.26 % shortfall at R = 4 m).
 
 Speeds: the speed waypoints w_k (k = 1..10, at tau_k = 0.25 k s, ego frame, w_0 = the ego
 at 0) give the label speeds of paper eq. 12, ``V_k = |w_k - w_{k-1}| / 0.25 s`` [m/s]: the mean

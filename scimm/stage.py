@@ -59,7 +59,7 @@ def make_teachers(folder: Path, files: list[Path], methods: tuple[str, ...],
 def write_tables(folder: Path, files: list[Path]) -> dict[str, pd.DataFrame]:
     """Table 2, the mode-meaning check, the fit residuals and the lag figures of a dataset
     whose teachers (``teacher.METHODS``) are complete, each written to
-    ``folder/teacher/<name>.csv``; returns them by name (scimm.table2.evaluate)."""
+    ``folder/teacher/<name>.csv``; returns them by name (``evaluate`` below)."""
     tables = evaluate(folder, files, tch.METHODS)
     for name, df in tables.items():
         write_atomic(folder / "teacher" / f"{name}.csv", lambda tmp, df=df: df.to_csv(tmp, index=False))

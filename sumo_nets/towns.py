@@ -5,7 +5,7 @@ bends, and returns a :class:`~sumo_nets.plain.PlainNet`. Layout is by hand (whic
 exist, their class, which junctions have lights or stop signs); the seed only moves
 things by a few metres, so every seed gives the same kind of town.
 
-- town01: small town, one lane each way, 4-way junctions with lights, T junctions.
+- town01: small town, one lane each way, lights at 8 chosen junctions (4-way and T), the rest priority.
 - town02: residential, narrow 30 km/h streets, all-way and two-way stop junctions.
 - town07: rural, long curved roads (arcs, S-bends), a small village, stop signs only.
 - town12: 2.3 km x 2.2 km: a skewed multi-lane downtown grid with lights, a residential
@@ -65,7 +65,7 @@ def _types_by_degree(net: PlainNet, nodes: Iterable[str], four: str, three: str)
 
 
 def town01(rng: np.random.Generator) -> PlainNet:
-    """Small town, ~540 m x 380 m: one lane each way, lights at 4-way junctions."""
+    """Small town, ~540 m x 380 m: one lane each way, lights at 8 chosen junctions (4-way and T)."""
     net = PlainNet("town01")
     xs, ys = (0, 130, 270, 400, 540), (0, 120, 250, 380)
     g = _grid(net, "n", xs, ys, rng, jitter=4.0)
@@ -124,7 +124,8 @@ def town12(rng: np.random.Generator) -> PlainNet:
     net = PlainNet("town12")
     j = lambda s: rng.uniform(-s, s)  # noqa: E731 - small jitter helper
 
-    # Downtown: 6 x 6 multi-lane grid, columns sheared (skewed junctions), all with lights.
+    # Downtown: 6 x 6 multi-lane grid, columns sheared (skewed junctions), lights at every
+    # junction of 3 or more roads at this point (corners d00, d50, d55, linked below, stay priority).
     d = _grid(net, "d", (900, 1020, 1160, 1270, 1400, 1520), (900, 1020, 1150, 1270, 1390, 1510),
               rng, jitter=6.0, shear=0.1)
     _grid_roads(net, d, lambda *_: DOWNTOWN, {((2, 2), (3, 2)), ((2, 3), (3, 3)), ((4, 4), (4, 5))},
@@ -133,7 +134,8 @@ def town12(rng: np.random.Generator) -> PlainNet:
         if net.degree(nid) >= 3:
             net.set_kind(nid, "traffic_light")
 
-    # Residential district (west): 30 km/h, stop signs, some curved streets, a collector row.
+    # Residential district (west): 30 km/h, stop signs at its junctions of 3 or more roads at
+    # this point (corners linked later stay priority), some curved streets, a collector row.
     h = _grid(net, "h", (220, 350, 480, 610, 740), (920, 1040, 1170, 1300, 1430), rng, jitter=8.0)
     _grid_roads(net, h, lambda i, jj, k, l: TOWN if jj == l == 2 else RESIDENTIAL,
                 {((1, 0), (2, 0)), ((3, 3), (3, 4)), ((0, 1), (1, 1))}, rng,

@@ -4,7 +4,8 @@ sumo_scimm.bench.command prints them as a table and optionally writes them as JS
 
 - closed loop (``closed_loop``): harness step with the chosen agent against bare libsumo
   stepping of the same traffic with the ego replayed, plus, for a student, its bare
-  inference (its own checkpoint's ``predict`` on inputs recorded in the same episodes, one
+  inference (its own checkpoint's ``infer`` after ``binarize``, what ``predict`` runs on a new
+  input, on inputs recorded in the same episodes, one
   thread), and, for reading, the libsumo replay with that network run between steps and
   the ratio's floor (SUMO and the network alternating, nothing else); BEV render;
 - teacher (``imm``): batched IMM frames per second on one core against filterpy's

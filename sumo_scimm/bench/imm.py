@@ -140,7 +140,7 @@ def run_imm_bench(batch: int = 300, frames: int = 400, filterpy_sequences: int =
 
 def _run_in_fresh_process(batch: int, frames: int, filterpy_sequences: int, seed: int) -> dict:
     """run_imm_bench in ``python -m sumo_scimm.bench.imm --json`` with one BLAS/OpenMP thread."""
-    root = str(Path(__file__).resolve().parents[1])
+    root = str(Path(__file__).resolve().parents[2])  # the repository: sumo_scimm/bench/imm.py
     env = dict(os.environ, **_ONE_THREAD)
     env["PYTHONPATH"] = os.pathsep.join(p for p in (root, env.get("PYTHONPATH")) if p)
     argv = [sys.executable, "-m", "sumo_scimm.bench.imm", "--json", "--batch", str(batch), "--frames", str(frames),

@@ -22,7 +22,7 @@ def _cfg(train_dir, val_dir, out, **kw) -> TrainConfig:
 
 
 class _Bar:
-    """Stands in for tqdm: records the progress counted."""
+    """Stands in for the progress bar (harness.common.progress): records the progress counted."""
 
     n, total = 0, None
 
@@ -44,7 +44,7 @@ def test_students_side_by_side_have_the_weights_of_one_thread_trainings_alone(se
     order given; each writes its epoch lines to its train.log; the progress bar counts
     every step of every training."""
     import model.side_by_side as sbs
-    monkeypatch.setattr(sbs, "tqdm", _Bar)
+    monkeypatch.setattr(sbs, "progress", _Bar)
     train_dir, val_dir = sets
     cfgs = [_cfg(train_dir, val_dir, tmp_path / "side" / name, teacher=teacher, seed=seed)
             for name, teacher, seed in (("a", "scimm", 0), ("b", "none", 1), ("c", "control", 0))]

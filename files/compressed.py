@@ -9,6 +9,7 @@ name in the gzip header), so an archive changes only where a record changed.
 from __future__ import annotations
 
 import gzip
+import zlib
 from pathlib import Path
 
 from files.atomic import write_atomic
@@ -26,13 +27,16 @@ def stored(path: Path) -> Path | None:
 def read_text(path: Path) -> str:
     """The text of ``path``, or of ``path.gz`` when only that exists (UTF-8); a file whose
     name ends in ``.gz``, given or found, is decompressed. OSError (FileNotFoundError naming
-    ``path``) when neither is a file; a damaged ``.gz`` raises OSError (gzip.BadGzipFile)
-    or EOFError (cut short)."""
+    ``path``) when neither is a file; a damaged or cut-short ``.gz`` raises OSError too
+    (gzip.BadGzipFile)."""
     found = stored(path)
     if found is None:
         raise FileNotFoundError(2, "No such file (nor a .gz of it)", str(path))
     if found.name.endswith(".gz"):
-        return gzip.decompress(found.read_bytes()).decode()
+        try:
+            return gzip.decompress(found.read_bytes()).decode()
+        except (EOFError, zlib.error) as exc:  # cut short, or corrupt inside
+            raise gzip.BadGzipFile(str(exc)) from None
     return found.read_text()
 
 

@@ -14,7 +14,8 @@ Each training runs ``model.train.train`` unchanged with ``threads`` = 1, and a t
 is deterministic at a given thread count, so a student trained here has the weights that
 ``sumo-scimm train ... --threads 1`` gives alone (its manifest records ``threads``).
 The BEV caches the trainings read are rendered first, in the calling process, once each.
-A training's own output (epoch lines) goes to ``train.log`` in its output folder; the
+A training's own output (epoch lines, and a progress line at most every 30 s:
+harness.common.progress) goes to ``train.log`` in its output folder; the
 parent shows one progress bar over every training's steps. A training that fails raises
 its error here once the others have finished; a stop (Ctrl-C, SIGTERM) ends every training.
 """
@@ -104,7 +105,7 @@ def _train_one(slot: int, cfg: TrainConfig) -> Path:
     from model.train import train
     _slot = slot
     with open(Path(cfg.out) / LOG_NAME, "w", buffering=1) as log:  # line by line, to follow it
-        sys.stdout = sys.stderr = log  # tqdm sees no terminal: its bar is off; epoch lines go here
+        sys.stdout = sys.stderr = log  # epoch lines, and a progress line at most every 30 s (a log)
         try:
             return train(cfg, on_step=_count_step)
         except BaseException:

@@ -347,7 +347,7 @@ def train(cfg: TrainConfig, on_step: Callable[[], None] | None = None) -> Path:
     bar = progress(total=total, desc=f"train ({cfg.teacher})", unit="step")
     for epoch, plan in enumerate(plans, start=1):
         te = time.perf_counter()
-        bar.set_description(f"train ({cfg.teacher}) epoch {epoch}/{cfg.epochs}")
+        bar.set_description(f"train ({cfg.teacher}) epoch {epoch}/{cfg.epochs}", refresh=False)
         means, step = run_epoch(model, opt, data, plan, steps[epoch - 1], cfg, step, total, bar, ema, on_step)
         record = {"epoch": epoch, "step": step, "lr": get_lr(step - 1, total, cfg.lr), "train": means,
                   "seconds": round(time.perf_counter() - te, 3)}

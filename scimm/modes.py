@@ -161,7 +161,7 @@ class IMMConfig:
         [0.010, 0.0020, 0.0001],   # Recovery: as Avoidance
     ]))
     # plan_R_path: sd of the fitted plan change, x 1.9: c0 half of Deceleration's Q, c1 and c2
-    # a little less than half (0.0005, 0.000025 against 0.0012, 0.00007; the teacher
+    # about two fifths and a third of it (0.0005, 0.000025 against 0.0012, 0.00007; the teacher
     # follows a lasting change within a few frames); with R twice this the Fixed-IMM's Cruise
     # path moved 1.14 x the plans' in the world on `val`, with this 1.07 x (docs/teacher.md)
     plan_R_path: np.ndarray = field(default_factory=lambda: 1.9 * np.array([0.0015, 0.0005, 0.000025]))

@@ -105,12 +105,12 @@ def main(argv: list[str] | None = None) -> int:
         print(f"sumo-scimm: error: {_os_error(exc)}", file=sys.stderr)
         return EXIT_BAD_INPUT
     except KeyboardInterrupt as exc:
+        # eval and collect keep what they wrote
+        hint = "; the same command with --resume goes on from here" if getattr(args, "resume", None) is not None else ""
         if isinstance(exc, Terminated):
-            print("sumo-scimm: terminated (SIGTERM)", file=sys.stderr)
+            print(f"sumo-scimm: terminated (SIGTERM){hint}", file=sys.stderr)
             return 128 + signal.SIGTERM
-        resumable = getattr(args, "resume", None) is not None  # eval and collect keep what they wrote
-        print("sumo-scimm: interrupted" + ("; the same command with --resume goes on from here" if resumable
-                                          else ""), file=sys.stderr)
+        print(f"sumo-scimm: interrupted{hint}", file=sys.stderr)
         return 130
     finally:
         if in_main and previous is not None:

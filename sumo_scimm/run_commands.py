@@ -9,7 +9,6 @@ import json
 import math
 import sys
 import zipfile
-import zlib
 from pathlib import Path
 
 from files.atomic import write_atomic
@@ -105,7 +104,7 @@ def _score(args: argparse.Namespace) -> int:
         text = results_text(out) + "\n"  # numbers checked finite (harness.scoring.validate); others: ValueError
     except (json.JSONDecodeError, UnicodeDecodeError, RecursionError) as exc:
         raise BadInput(f"{path}: not JSON ({exc})") from None
-    except (gzip.BadGzipFile, EOFError, zlib.error) as exc:  # a damaged .gz
+    except gzip.BadGzipFile as exc:  # a damaged .gz (files.compressed)
         raise BadInput(f"{path}: not a readable gzip file ({exc})") from None
     except ScoreError as exc:  # one complete sentence
         raise BadInput(f"{path}: {exc}") from None
@@ -114,7 +113,7 @@ def _score(args: argparse.Namespace) -> int:
     for note in notes:
         print(f"note: {note}", file=sys.stderr)
     if args.out:
-        Path(args.out).parent.mkdir(parents=True, exist_ok=True)  # as every command's --out
+        Path(args.out).parent.mkdir(parents=True, exist_ok=True)  # as eval's, report's and replay's --out
         write_atomic(Path(args.out), text)
         g = out["_checkpoint"]["global_record"]
         done, total = out["_checkpoint"]["progress"][:2]

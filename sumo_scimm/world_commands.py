@@ -50,7 +50,7 @@ def _routes_make(args: argparse.Namespace) -> int:
     meta = {"set": args.set, "seed": str(spec.seed if args.seed is None else args.seed),
             "min_length": f"{spec.length[0]:g}", "max_length": f"{spec.length[1]:g}"}
     if args.out:
-        Path(args.out).parent.mkdir(parents=True, exist_ok=True)  # as every command's --out
+        Path(args.out).parent.mkdir(parents=True, exist_ok=True)  # as eval's, report's and replay's --out
     out = write_routes(Path(args.out) if args.out else set_path(args.set), meta, routes)
     print(f"{len(routes)} routes -> {out}")
     return 0
@@ -58,13 +58,14 @@ def _routes_make(args: argparse.Namespace) -> int:
 
 def _routes_check(args: argparse.Namespace) -> int:
     from scenarios.check import check_file
-    n, problems = check_file(Path(args.file))
+    path = Path(args.file)
+    n, problems = check_file(path)
     for p in problems:
         text = str(p)  # file-level problems name the file already
-        print(text if text.startswith(f"{args.file}: ") else f"{args.file}: {text}")
+        print(text if text.startswith(f"{path}: ") else f"{path}: {text}")
     if problems:
         return EXIT_BAD_INPUT
-    print(f"{args.file}: {n} routes OK")
+    print(f"{path}: {n} routes OK")
     return 0
 
 

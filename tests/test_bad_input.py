@@ -386,3 +386,9 @@ def test_score_reads_a_gzip_compressed_results_file_and_refuses_a_damaged_one(on
     cut.write_bytes(packed.read_bytes()[:60])
     code, printed = _cli(["score", str(cut)])
     _one_line_exit_2(code, printed, "not a readable gzip file")
+
+
+def test_a_closed_output_pipe_is_named_as_such():
+    from sumo_scimm.cli import _os_error
+    line = _os_error(BrokenPipeError(32, "Broken pipe"))
+    assert line == "Broken pipe (the program reading the output closed it first)"

@@ -93,10 +93,12 @@ def test_entity_expansion_is_refused(tmp_path, capsys):
     assert "refused" in _one_line(out)
 
 
-def test_missing_file_and_unknown_set_and_town(capsys, tmp_path):
+def test_missing_file_and_unknown_set_and_town(capsys, tmp_path, monkeypatch):
     code, out = _run(capsys, "routes", "check", str(tmp_path / "nope.xml"))
     assert code == 2, out
-    assert "no such route file" in _one_line(out)
+    assert _one_line(out) == f"{tmp_path / 'nope.xml'}: no such route file"  # the file named once
+    monkeypatch.chdir(tmp_path)
+    assert _run(capsys, "routes", "check", "./nope.xml")[1].strip() == "nope.xml: no such route file"
     code, out = _run(capsys, "routes", "show", "town13_short")
     assert code == 2, out
     assert "unknown route set 'town13_short'" in _one_line(out)

@@ -249,7 +249,7 @@ def test_sigterm_ends_the_workers_and_the_run_resumes(tmp_path):
     out = tmp_path / "run"
     code, err, first = _stop_a_smoke_eval(out, lambda proc: proc.send_signal(signal.SIGTERM))
     assert code == 143, err
-    assert "sumo-scimm: terminated (SIGTERM)" in err, err
+    assert "sumo-scimm: terminated (SIGTERM); the same command with --resume goes on from here" in err, err
     assert "Traceback" not in err, err
     assert 1 <= len(first) < 4
     assert main(["eval", "--routes", "town12_smoke", "--agent", "route_follower", "--workers", "2",
@@ -280,7 +280,7 @@ def test_sigint_then_resume_finishes_the_run_as_an_uninterrupted_one(tmp_path, c
     out = tmp_path / "run"
     code, err, first = _stop_a_smoke_eval(out, lambda proc: os.killpg(proc.pid, signal.SIGINT))
     assert code == 130, err
-    assert "sumo-scimm: interrupted" in err
+    assert "sumo-scimm: interrupted; the same command with --resume goes on from here" in err
     assert "Traceback" not in err
     assert 1 <= len(first) < 4
     assert main(["eval", "--routes", "town12_smoke", "--agent", "route_follower", "--workers", "2",

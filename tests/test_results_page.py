@@ -103,8 +103,6 @@ def _seeds_for(mde_n: float, n: int, effect: float) -> int:
     """The fewest seeds whose MDE reaches ``effect``, for differences whose spread gives
     ``mde_n`` with n seeds: (t_{.975,m-1} + t_{.8,m-1}) sd / sqrt(m) <= effect, sd read back
     from the MDE (harness.scoring.paired.mde's formula, solved here on its own)."""
-    from scipy import stats
-
     def t_sum(m: int) -> float:
         return float(stats.t.ppf(0.975, m - 1) + stats.t.ppf(0.8, m - 1))
     sd = mde_n * n ** 0.5 / t_sum(n)
@@ -120,18 +118,16 @@ def test_the_shares_and_seed_counts_the_page_derives_follow_from_its_tables(rebu
     At the baseline the 79th seed brings the MDE 0.6 % under 10 % and the 78th leaves it
     0.08 % over, more than the tables' rounding to four digits moves it."""
     text = " ".join(PAGE.read_text().split())  # the prose as one line: sentences wrap anywhere
-    claims = (rebuilt[EVAL_SET] / "claims.md").read_text()
     table4 = (rebuilt[EVAL_SET] / "table4.md").read_text()
-    column = "steering jerk [1/s^2]"
-    mean = {arm: _cell(table4, (arm, "20"), column).split()[0] for arm in ("baseline", "control")}
+    said = {"baseline": "1/s^2 for SC-IMM against the baseline, about {} % of the baseline's",
+            "control": "against the control, about {} % of the control's", "fixed": "against Fixed-IMM, about {} % of its"}
     seeds = {}
-    for ref in ("baseline", "control"):
-        mde_20 = float(_cell(claims, ("scimm", ref), "steering jerk lower").split("MDE ")[1].split(",")[0])
-        share = round(100 * mde_20 / float(mean[ref]))
-        said = {"baseline": f"{mde_20} 1/s^2 for SC-IMM against the baseline, about {share} % of the baseline's",
-                "control": f"{mde_20} against the control, about {share} % of the control's"}[ref]
-        assert f"{said} {mean[ref]}" in text
-        seeds[ref] = _seeds_for(mde_20, 20, 0.1 * float(mean[ref]))
+    for ref, words in said.items():  # SC-IMM's steering-jerk MDE against each reference
+        mean = _cell(table4, (ref, "20"), "steering jerk [1/s^2]").split()[0]
+        table = (rebuilt[f"{EVAL_SET}[fixed,scimm]" if ref == "fixed" else EVAL_SET] / "claims.md").read_text()
+        mde_20 = float(_cell(table, ("scimm", ref), "steering jerk lower").split("MDE ")[1].split(",")[0])
+        assert f"{mde_20} {words.format(round(100 * mde_20 / float(mean)))} {mean}" in text
+        seeds[ref] = _seeds_for(mde_20, 20, 0.1 * float(mean))
     assert f"would take {seeds['baseline']} seeds at this spread, against the control {seeds['control']} (" in text
     table3 = (rebuilt[EVAL_SET] / "table3.md").read_text()
     pairs = {("scimm", "baseline"): True, ("fixed", "baseline"): True, ("scimm", "control"): True,

@@ -242,7 +242,7 @@ def _first_difference(old: dict, new: dict) -> str:
             if not isinstance(was, dict):
                 return f"{key} differs"
             f = next(f for f in (*now, *was) if was.get(f) != now.get(f))
-            if f == "seed":  # a route run's seed, made from --seed and the route's place (route_seed)
+            if f == "seed" and now.get("route") == was.get("route"):  # route_seed: --seed and the route's place
                 return f"{key}: seed {now.get(f)!r}, the run has {was.get(f)!r}: another --seed than the run's"
             return f"{key}: {f} {now.get(f)!r}, the run has {was.get(f)!r}"
     return "it differs"

@@ -27,9 +27,9 @@ import zlib
 from pathlib import Path
 
 import numpy as np
-from harness.common.progress import progress
 
 from files.atomic import write_atomic
+from harness.common.progress import progress
 from scimm.teacher import episode_files
 
 BEV_SHAPE = (9, 64, 64)  # harness.sensors.bev: (channels, rows, columns)

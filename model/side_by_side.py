@@ -30,7 +30,6 @@ from pathlib import Path
 from time import sleep
 
 from harness.common.progress import progress
-
 from model.train import TrainConfig
 
 SIDE_BY_SIDE = 2  # trainings at once (one per core of a 2-core machine)

@@ -17,10 +17,10 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
-from harness.common.progress import progress
 
 from files.atomic import write_atomic
 from harness.common.errors import BadInput
+from harness.common.progress import progress
 from scimm import pathspeed
 from scimm import teacher as tch
 from scimm.lag import lag_tables, stops_starts

@@ -6,8 +6,8 @@
     town12_short and on the second set town12_second -> every seed's students fed the
     expert's inputs on town12_short (replay) -> Table 2, Tables 3-4 with seed-paired
     intervals (route-paired with one seed) against the baseline and against the
-    loss-matched control, the paper's claims, DS per hazard type, the arms' ranking on both sets, the replay table, Fig. 4, Fig. 5,
-    loss curves
+    loss-matched control, the paper's claims, DS per hazard type, the arms' ranking on both
+    sets, the replay table, Fig. 4, Fig. 5, loss curves
 
 Every stage is the function behind the subcommand a user would run by hand (its command
 line is printed), and each skips work whose outputs exist (collect and eval resume; a

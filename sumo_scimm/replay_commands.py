@@ -28,7 +28,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     rp.add_argument("--agent", action="append", required=True,
                     help="agent to replay (name, module:Class or a student checkpoint .pt); repeat for several, "
                          "the first is the one the others are compared with")
-    rp.add_argument("--out", type=out_arg, required=True, help="output folder (replay.csv, table.csv|md, replay.json, outputs/)")
+    rp.add_argument("--out", type=out_arg, required=True,
+                    help="output folder (replay.csv, table.csv|md, replay.json, outputs/)")
     rp.add_argument("--routes", help="route set or file the reference drove (default: found among the shipped "
                     "sets by the routes' hashes in its run.jsonc)")
     rp.add_argument("--routes-subset", help="route ids to replay: '3', '0-9', '1,4,7' (default all)")

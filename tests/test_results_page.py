@@ -120,7 +120,8 @@ def test_the_shares_and_seed_counts_the_page_derives_follow_from_its_tables(rebu
     text = " ".join(PAGE.read_text().split())  # the prose as one line: sentences wrap anywhere
     table4 = (rebuilt[EVAL_SET] / "table4.md").read_text()
     said = {"baseline": "1/s^2 for SC-IMM against the baseline, about {} % of the baseline's",
-            "control": "against the control, about {} % of the control's", "fixed": "against Fixed-IMM, about {} % of its"}
+            "control": "against the control, about {} % of the control's",
+            "fixed": "against Fixed-IMM, about {} % of its"}
     seeds = {}
     for ref, words in said.items():  # SC-IMM's steering-jerk MDE against each reference
         mean = _cell(table4, (ref, "20"), "steering jerk [1/s^2]").split()[0]
@@ -134,7 +135,8 @@ def test_the_shares_and_seed_counts_the_page_derives_follow_from_its_tables(rebu
              ("scimm", "fixed"): False, ("fixed", "control"): False, ("control", "baseline"): False}
     for (arm, ref), above in pairs.items():  # whether the DS MDE exceeds +4.6 % of the reference's DS
         selection = f"{EVAL_SET}[fixed,scimm]" if ref == "fixed" else EVAL_SET
-        mde_20 = _cell((rebuilt[selection] / "claims.md").read_text(), (arm, ref), "DS higher").split("MDE ")[1].split(",")[0]
+        claims = (rebuilt[selection] / "claims.md").read_text()
+        mde_20 = _cell(claims, (arm, ref), "DS higher").split("MDE ")[1].split(",")[0]
         ds = _cell(table3, (ref, "20"), "driving score").split()[0]
         share = 100 * float(mde_20) / float(ds)
         assert (share > 4.6) == above

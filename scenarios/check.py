@@ -87,3 +87,10 @@ def check_file(path: Path) -> tuple[int, list[RouteFileError]]:
         except RouteFileError as exc:
             problems.append(exc)
     return len(elements), problems
+
+
+def problem_line(path: Path, problem: RouteFileError) -> str:
+    """``path: problem`` with the file named once: the problems of a whole file (load_tree,
+    set_bounds) name it already, a route's do not."""
+    text = str(problem)
+    return text if text.startswith(f"{path}: ") else f"{path}: {text}"

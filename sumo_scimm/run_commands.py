@@ -128,6 +128,7 @@ def _score(args: argparse.Namespace) -> int:
 
 def _report(args: argparse.Namespace) -> int:
     from harness.common.lock import FolderLock
+    from harness.scoring.b2d_tables import without_records
     from harness.scoring.report import ReportError, parse_arms
     from model.arm_tables import write_set_tables  # the tables of 'sumo-scimm reproduce'
     try:
@@ -136,7 +137,7 @@ def _report(args: argparse.Namespace) -> int:
             print(write_set_tables(arms, Path(args.out))[0])
     except ReportError as exc:
         raise BadInput(str(exc)) from None
-    short = [str(f) for folders in arms.values() for f in folders if stored(f / "records.jsonl") is None]
+    short = without_records(arms)
     if short:  # an archive that keeps records.csv and results.json alone
         print(f"note: no records.jsonl in {short[0]}" + (f" and {len(short) - 1} more" if len(short) > 1 else "")
               + ": Bench2Drive's tables and the DS per hazard type need it and were not written", file=sys.stderr)

@@ -57,12 +57,11 @@ def _routes_make(args: argparse.Namespace) -> int:
 
 
 def _routes_check(args: argparse.Namespace) -> int:
-    from scenarios.check import check_file
+    from scenarios.check import check_file, problem_line
     path = Path(args.file)
     n, problems = check_file(path)
     for p in problems:
-        text = str(p)  # file-level problems name the file already
-        print(text if text.startswith(f"{path}: ") else f"{path}: {text}")
+        print(problem_line(path, p))
     if problems:
         return EXIT_BAD_INPUT
     print(f"{path}: {n} routes OK")

@@ -88,9 +88,13 @@ def test_entity_expansion_is_refused(tmp_path, capsys):
     bomb = ('<?xml version="1.0"?>\n<!DOCTYPE r [<!ENTITY a "aaaaaaaaaa">'
             '<!ENTITY b "&a;&a;&a;&a;&a;&a;&a;&a;&a;&a;"><!ENTITY c "&b;&b;&b;&b;&b;&b;&b;&b;&b;&b;">]>\n'
             '<routes><route id="&c;" town="town12"/></routes>\n')
-    code, out = _run(capsys, "routes", "check", _bad(tmp_path, bomb))
+    path = _bad(tmp_path, bomb)
+    code, out = _run(capsys, "routes", "check", path)
     assert code == 2, out
     assert "refused" in _one_line(out)
+    code, out = _run(capsys, "eval", "--routes", path, "--out", str(tmp_path / "run"))  # the same problem, from eval
+    assert code == 2, out
+    assert _one_line(out).count(str(path)) == 2  # named once, then in the 'routes check' command it suggests
 
 
 def test_missing_file_and_unknown_set_and_town(capsys, tmp_path, monkeypatch):

@@ -234,3 +234,15 @@ def test_a_run_folder_kept_gzip_compressed_gives_the_same_tables_through_the_com
     assert made == sorted(p.name for p in (tmp_path / "t2").iterdir())
     for name in made:
         assert (tmp_path / "t1" / name).read_text() == (tmp_path / "t2" / name).read_text(), name
+
+
+def test_report_names_run_folders_without_records_jsonl(tmp_path, capsys):
+    """The committed records keep records.csv and results.json alone: report writes Tables
+    3-4 from them and says which tables it could not make (no Bench2Drive tables)."""
+    from sumo_scimm.cli import main
+    runs = Path(__file__).resolve().parents[1] / "docs" / "results" / "decisive" / "town12_short"
+    assert main(["report", f"baseline={runs / 'baseline_s0'}", f"scimm={runs / 'scimm_s0'}",
+                 "--out", str(tmp_path / "rep")]) == 0
+    err = capsys.readouterr().err
+    assert f"note: no records.jsonl in {runs / 'baseline_s0'} and 1 more: Bench2Drive's tables" in err
+    assert (tmp_path / "rep" / "table3.md").is_file() and not (tmp_path / "rep" / "b2d.md").exists()

@@ -167,11 +167,11 @@ def first_plan(route):
 def _route_set(name: str) -> Path:
     """The checked route file of a set name or path."""
     from scenarios import resolve_set
-    from scenarios.check import check_file
+    from scenarios.check import check_file, problem_line
     path = resolve_set(name)
     _, problems = check_file(path)
     if problems:
-        raise BadInput(f"{path}: {problems[0]} (run 'sumo-scimm routes check {path}')")
+        raise BadInput(f"{problem_line(path, problems[0])} (run 'sumo-scimm routes check {path}')")
     return path
 
 

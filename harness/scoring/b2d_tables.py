@@ -117,11 +117,16 @@ def _fmt(x: float) -> str:
     return f"{x:.1f}" if math.isfinite(x) else "-"
 
 
+def without_records(arms: dict[str, list[Path]]) -> list[Path]:
+    """The run folders of {arm: run folders} with no records.jsonl (plain or .gz; a table
+    written by hand, an archive that keeps records.csv alone): the tables below need it."""
+    return [f for folders in arms.values() for f in folders if not stored(f / "records.jsonl")]
+
+
 def b2d_tables(arms: dict[str, list[Path]]) -> list[tuple[str, list[dict], str]]:
     """[(file stem, CSV rows, Markdown)] of the two tables (module docstring) for {arm: run
-    folders}; none when a folder has no records.jsonl (plain or .gz; a table written by hand, an
-    archive that keeps records.csv alone)."""
-    if not all(stored(f / "records.jsonl") for folders in arms.values() for f in folders):
+    folders}; none when a folder has no records.jsonl (``without_records``)."""
+    if without_records(arms):
         return []
     runs = {name: [route_figures(f) for f in folders] for name, folders in arms.items()}
     rng = np.random.default_rng(SEED)

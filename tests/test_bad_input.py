@@ -309,7 +309,7 @@ def test_report_refuses_a_results_json_with_a_number_out_of_range(one_route_run,
     data["_checkpoint"]["records"][0]["meta"]["route_length"] = -1.0
     (run / "results.json").write_text(json.dumps(data))
     code, printed = _cli(["report", str(run), "--out", str(tmp_path / "report")])
-    _one_line_exit_2(code, printed, "meta.route_length is -1.0, outside (0, 1e+07]")
+    _one_line_exit_2(code, printed, "meta.route_length is -1.0, outside [0, 1e+07]")
 
 
 def test_a_checkpoint_that_is_not_a_torch_file_is_called_so(tmp_path):

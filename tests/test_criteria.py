@@ -16,6 +16,7 @@ from harness.loop.episode import run_episode
 from harness.scoring.criteria import RouteTimeout
 from harness.scoring.infractions import collisions, detect
 from harness.scoring.statuses import FAILED_TIMEOUT
+from harness.sim.hazards import make_hazard
 from harness.sim.plan import build_plan
 from harness.sim.world import World
 from scenarios import set_path
@@ -146,3 +147,55 @@ def test_route_timeout_budget_by_hand():
         assert moving.update(k + 0.5, 0.0, 0.0) is None
     assert moving.budget == 450.0
     assert moving.update(100.5, 0.0, 450.0) is None and moving.update(100.5, 0.0, 450.01) == FAILED_TIMEOUT
+
+
+def test_a_parked_or_accident_car_is_a_vehicle_collision_a_construction_site_is_layout():
+    """The Leaderboard's ParkedObstacle and Accident spawn ``vehicle.*`` actors (x 0.6 when
+    hit), its construction site props (x 0.65). Three contacts 10 s and 20 m apart, so
+    each counts: the construction obstacle (hazard 0), the accident's car (hazard 1) and a
+    harness prop."""
+    n = 600
+    log = {"t": np.arange(n) * 0.05, "x": np.arange(n) * 0.1, "y": np.zeros(n), "v": np.full(n, 2.0),
+           "contact_tick": np.array([1, 201, 401]), "contact_actor": np.array(["hz0_obstacle", "hz1_obstacle", "prop0"]),
+           "contact_class": np.array([2, 2, 2])}
+    spans = [("ParkedObstacle", 0.0, 30.0, {"variant": "construction"}),
+             ("ParkedObstacle", 50.0, 80.0, {"variant": "accident"})]
+    ev = collisions(log, spans)
+    assert ev["collisions_vehicle"] == ["Agent collided against object with type=vehicle.sumo.accident and "
+                                        "id=hz1_obstacle at (x=20.0, y=0.0, z=0.0)"]
+    assert [m.split(" and ")[1] for m in ev["collisions_layout"]] == ["id=hz0_obstacle at (x=0.0, y=0.0, z=0.0)",
+                                                                      "id=prop0 at (x=40.0, y=0.0, z=0.0)"]
+    assert ev["collisions_pedestrian"] == []
+
+
+def test_the_route_follower_hits_the_parked_car_a_vehicle_collision():
+    route = SMOKE[3]  # ParkedObstacle, variant parked_car; the route follower ignores it
+    assert route.hazards[0].params["variant"] == "parked_car"
+    res, ev = _run(route, "route_follower")
+    assert [m.split(" at ")[0] for m in ev["collisions_vehicle"]] == [
+        "Agent collided against object with type=vehicle.sumo.parked_car and id=hz0_obstacle"]
+    assert ev["collisions_layout"] == []
+
+
+def test_a_timed_out_obstacle_is_removed_and_a_passed_one_stays():
+    """The Leaderboard destroys an obstacle scenario's actors when it ends: 240 s after the
+    trigger (strictly more) with the ego not yet 10 m past the site, the obstacle goes; an
+    ego already 10 m past the site has ended the scenario itself and the obstacle stays."""
+    route = SMOKE[3]
+    net = load_net("town12")
+    plan = build_plan(route, net)
+    for ego_past, removed in ((-20.0, True), (10.0, False)):
+        world = World("town12", 7)
+        try:
+            hz = make_hazard(route.hazards[0], plan, net, np.random.default_rng(0), 0)
+            hz.setup()
+            world.step()
+            assert "hz0_obstacle" in libsumo.vehicle.getIDList()
+            hz.update(hz.trigger_s, 1.0, 5.0)  # the trigger: t0 = 1 s
+            hz.update(hz.site_s + ego_past, 1.0 + 240.0, 0.0)  # 240 s: not yet
+            assert "hz0_obstacle" in libsumo.vehicle.getIDList()
+            hz.update(hz.site_s + ego_past, 1.0 + 240.05, 0.0)
+            assert ("hz0_obstacle" not in libsumo.vehicle.getIDList()) == removed
+            hz.update(hz.site_s + ego_past, 1.0 + 240.10, 0.0)  # and once only
+        finally:
+            world.close()

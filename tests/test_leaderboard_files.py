@@ -136,6 +136,15 @@ def test_crashed_run_is_crashed_and_not_eligible():
     assert text == json.dumps(expected, indent=4)
 
 
+def test_a_route_that_failed_to_load_has_length_0_and_is_rescored():
+    """The leaderboard writes route_length 0 for a route whose scenario failed to load (its
+    route length is reset between routes): a file with one is read, not refused."""
+    unloaded = {**HAND_CRASHED, "meta": {**HAND_CRASHED["meta"], "route_length": 0}}
+    out = rescore_results(_file([HAND_COMPLETED, unloaded], [2, 2], "Crashed"))
+    assert [r["scores"]["score_composed"] for r in out["_checkpoint"]["records"]] == [94.0, 0.0]
+    assert out["_checkpoint"]["records"][1]["meta"]["route_length"] == 0
+
+
 def test_crashed_run_standard_deviations_by_hand():
     # DS: (54.166667^2 + 39.833333^2 + 14.333333^2) / 2 = (2934.03 + 1586.69 + 205.44) / 2 = 2363.08
     ds = ((94 - 39.833333) ** 2 + 39.833333 ** 2 + (25.5 - 39.833333) ** 2) / 2

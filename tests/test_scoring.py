@@ -73,6 +73,21 @@ def test_lb21_is_additive_and_b2d_ignores_min_speed():
     assert infraction_penalty(slow, "b2d") == 1.0
 
 
+def test_route_completion_is_divided_before_it_is_scaled_as_the_leaderboards():
+    """A straight 63.154 m route of 65 points (np.linspace): point 10 lies at 9.8678125 m, and
+    9.8678125 / 63.154 x 100 is 15.625 exactly, which rounds to 15.62 (ties to even), as the
+    leaderboard's ``x / max_dist * 100`` gives; 100 x 9.8678125 / 63.154 is
+    15.625000000000002 and would round to 15.63."""
+    from types import SimpleNamespace
+    from harness.scoring.criteria import RouteCompletion
+    s = np.linspace(0.0, 63.154, 65)
+    rc = RouteCompletion(SimpleNamespace(s=s, length=float(s[-1]), xy=np.stack([s, np.zeros(65)], 1),
+                                         yaw=np.zeros(65)))
+    for x in np.arange(0.5, 10.6, 1.0):  # to just past point 10
+        assert rc.update(float(x), 0.0) is None
+    assert rc.rc == 15.62
+
+
 def test_status_texts():
     assert route_status(100.0, inf()) == "Perfect"
     assert route_status(100.0, inf(min_speed_infractions=[speed(90.0)])) == "Completed"

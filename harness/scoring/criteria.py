@@ -14,8 +14,9 @@ from harness.sim.plan import GlobalPlan, Progress
 
 
 class RouteCompletion:
-    """RC = 100 * cum_dist[i] / length (2 decimals); success when RC > 99 and the ego is
-    within 10 m of the last dense point, and then RC = 100."""
+    """RC = cum_dist[i] / length * 100 (2 decimals; in the leaderboard's order of operations,
+    which decides the last digit at a tie); success when RC > 99 and the ego is within 10 m
+    of the last dense point, and then RC = 100."""
 
     DONE_RC, DONE_DIST = 99.0, 10.0
 
@@ -25,7 +26,7 @@ class RouteCompletion:
 
     def update(self, x: float, y: float) -> str | None:
         i = self.progress.update(x, y)
-        self.rc = _round2(100.0 * float(self.plan.s[i]) / self._length)
+        self.rc = _round2(float(self.plan.s[i]) / self._length * 100.0)
         end = self.plan.xy[-1]
         if self.rc > self.DONE_RC and np.hypot(x - end[0], y - end[1]) < self.DONE_DIST:
             self.rc = 100.0

@@ -16,7 +16,10 @@ SUMO stand-ins for CARLA geometry (decisions, see docs/scoring.md):
   the ego's heading (the Leaderboard tracks lane changes; same outcome for a car that
   does not spin in place);
 - collisions: our oriented-box contacts, classified by the other actor (vehicle,
-  walker, static obstacle), then the 5 s same-actor, 5 m and 0.1 m/s rules.
+  walker, static obstacle), then the 5 s same-actor, 5 m and 0.1 m/s rules. The parked
+  car and the accident's car of a ParkedObstacle are vehicles, as in the Leaderboard's
+  ParkedObstacle and Accident scenarios (``vehicle.*`` actors); a construction site and
+  the harness's props are static.
 """
 from __future__ import annotations
 
@@ -45,6 +48,7 @@ MIN_SPEED_CHECKPOINTS = {"lb2.0": 4, "lb2.1": 4, "b2d": 20}
 _RED = (0, 1)  # TLS_CODES indices of 'r' and 'R'
 _CLASS_KEY = {VEHICLE: "collisions_vehicle", PEDESTRIAN: "collisions_pedestrian", STATIC: "collisions_layout"}
 _TYPE_ID = {VEHICLE: "vehicle.sumo.car", PEDESTRIAN: "walker.pedestrian.sumo", STATIC: "static.prop.obstacle"}
+OBSTACLE_VEHICLES = ("parked_car", "accident")  # ParkedObstacle variants that are cars in the Leaderboard
 
 
 def loc(x: float, y: float) -> str:
@@ -61,7 +65,21 @@ def hazard_spans(plan: GlobalPlan, route: Route) -> list[tuple[str, float, float
     return out
 
 
-def collisions(log: dict) -> dict[str, list[str]]:
+def scored_class(actor: str, cls: int, spans) -> tuple[int, str]:
+    """The class a contact is scored as and its message's type: a ParkedObstacle's parked
+    or accident car (SUMO id ``hz<n>_obstacle``, n its place among the route's hazards) is a
+    vehicle, though the world gives it the static class its drivers see."""
+    if cls == STATIC and actor.startswith("hz") and actor.endswith("_obstacle"):
+        n = actor[2:-len("_obstacle")]
+        if n.isdigit() and int(n) < len(spans):
+            kind, _, _, params = spans[int(n)]
+            if kind == "ParkedObstacle" and params.get("variant") in OBSTACLE_VEHICLES:
+                return VEHICLE, f"vehicle.sumo.{params['variant']}"
+    return cls, _TYPE_ID[cls]
+
+
+def collisions(log: dict, spans=()) -> dict[str, list[str]]:
+    """The three collision lists; ``spans`` (hazard_spans) names the route's obstacles."""
     out = {k: [] for k in _CLASS_KEY.values()}
     t, x, y, v = log["t"], log["x"], log["y"], log["v"]
     last_id, last_time, last_loc = None, -math.inf, None
@@ -79,8 +97,9 @@ def collisions(log: dict) -> dict[str, list[str]]:
             if actor == last_id or last_loc is not None or v[k] < EPSILON:
                 continue
             last_id, last_time, last_loc = actor, t[k], (x[k], y[k])
-            out[_CLASS_KEY[cls]].append(f"Agent collided against object with type={_TYPE_ID[cls]} and "
-                                        f"id={actor} at {loc(x[k], y[k])}")
+            scored, type_id = scored_class(actor, cls, spans)
+            out[_CLASS_KEY[scored]].append(f"Agent collided against object with type={type_id} and "
+                                           f"id={actor} at {loc(x[k], y[k])}")
     return out
 
 
@@ -230,7 +249,7 @@ def detect(log: dict, plan: GlobalPlan, route: Route, net, status: str, rules: s
     if len(log["t"]) == 0:
         return ev
     spans = hazard_spans(plan, route)
-    ev.update(collisions(log))
+    ev.update(collisions(log, spans))
     ev["red_light"] = red_lights(log, plan, net)
     ev["stop_infraction"] = stop_signs(log, plan)
     ev["outside_route_lanes"] = outside_lanes(log, plan, LaneIndex.for_town(route.town), spans, values)

@@ -5,7 +5,9 @@ An arm is one run folder of ``sumo-scimm eval`` or several (its seeds, in seed o
 baseline=runs/b_s0,runs/b_s1 scimm=runs/s_s0,runs/s_s1``; a bare folder is an arm of one
 run named after the folder). The i-th folder of every arm is seed index i, and arms are
 paired by seed index (a seed fixes a student's initialisation and data order in every arm).
-The first arm is the baseline. For each figure (of a run: over its routes; Collision/km:
+The first arm given to ``compare`` is its reference (called "the baseline" below);
+``sumo-scimm report`` (model.arm_tables) calls it once per reference arm, 'baseline' and
+then 'control' where they run, else the first arm. For each figure (of a run: over its routes; Collision/km:
 summed collisions over summed km):
 
 - each arm's value: the mean over its runs, with a 95 % interval: Student t over the runs'

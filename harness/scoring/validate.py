@@ -7,7 +7,7 @@ range, else the file is refused with one line naming the record, the field and t
     scores.score_route         RC [%]                  [0, 100]
     scores.score_penalty       IS                      [0, 1]      (recomputed; checked if present)
     scores.score_composed      DS                      [0, 100]    (recomputed; checked if present)
-    meta.route_length          route length [m]        (0, 1e7]
+    meta.route_length          route length [m]        [0, 1e7]    (0: a route that failed to load)
     meta.duration_game/_system durations [s]           [0, 1e9]
     outside_route_lanes msg    metres >= 0, percentage [0, 100]
     min_speed_infractions msg  percentage of the traffic's speed >= 0
@@ -42,8 +42,9 @@ from harness.scoring.records import COUNT_KEYS, RECORD_FIELDS, STABILITY
 # field -> (low, high, low is open)
 SCORE_RANGES = {"score_route": (0.0, 100.0, False), "score_penalty": (0.0, 1.0, False),
                 "score_composed": (0.0, 100.0, False)}
-# a route of up to 10,000 km, driven for up to 10^9 s (31 years): beyond, a number is damage
-META_RANGES = {"route_length": (0.0, 1e7, True), "duration_game": (0.0, 1e9, False),
+# a route of up to 10,000 km, driven for up to 10^9 s (31 years): beyond, a number is damage; the
+# leaderboard writes route_length 0 for a route that failed to load ("Simulation crashed")
+META_RANGES = {"route_length": (0.0, 1e7, False), "duration_game": (0.0, 1e9, False),
                "duration_system": (0.0, 1e9, False)}
 # records.csv columns report reads, with their ranges (stability metrics may be NaN: undefined)
 CSV_RANGES = {"ds": (0.0, 100.0, False), "rc": (0.0, 100.0, False), "is": (0.0, 1.0, False),

@@ -32,7 +32,8 @@ import numpy as np
 import sumolib
 
 from controller.vehicle import DT
-from harness.sim.hazard_actor import HazardActor, Scripted, _add_person, _road_sides
+from harness.sim.hazard_actor import (SCENARIO_END, SCENARIO_TIMEOUT, HazardActor, Scripted, _add_person,
+                                      _road_sides)
 from harness.sim.plan import GlobalPlan, route_lane
 from harness.sim.world import PERSON_PREFIX, sumo_angle
 from scenarios.hazards import HAZARDS
@@ -107,12 +108,16 @@ class DynamicObjectCrossing(HazardActor):
 @actor
 class ParkedObstacle(HazardActor):
     """A stopped vehicle of type ``obstacle_<variant>`` in the ego lane at the site; its
-    lane is kept free of background traffic."""
+    lane is kept free of background traffic. When the scenario times out (240 s after the
+    trigger with the ego not yet 10 m past the site), the obstacle is removed and the ego
+    may drive on, as the Leaderboard's obstacle scenarios destroy their actors when they
+    end."""
 
     def __init__(self, hazard: Hazard, plan: GlobalPlan, net: sumolib.net.Net, rng: np.random.Generator,
                  n: int):
         super().__init__(hazard, plan, net, rng, n)
         self.cleared_lane: str | None = None  # lane kept free of background traffic
+        self.obstacle: str | None = None  # the obstacle's SUMO id while it stands
 
     def quiet_span(self) -> tuple[float, float]:
         """100 m before to 150 m past the obstacle."""
@@ -132,6 +137,14 @@ class ParkedObstacle(HazardActor):
         libsumo.vehicle.setLaneChangeMode(vid, 0)
         libsumo.vehicle.setSpeed(vid, 0.0)
         self.cleared_lane = f"{edge}_{lane}"
+        self.obstacle = vid
+
+    def _tick(self, ego_s: float, time: float, ego_speed: float) -> None:
+        """Remove the obstacle once the scenario has timed out."""
+        if (self.obstacle is not None and ego_s < self.site_s + SCENARIO_END
+                and time - self.t0 > SCENARIO_TIMEOUT):
+            libsumo.vehicle.remove(self.obstacle)
+            self.obstacle = None
 
     def update(self, ego_s: float, time: float, ego_speed: float) -> None:
         """The obstacle's lane cleared every tick, before and after the trigger."""

@@ -20,7 +20,7 @@ Leaderboard convention every agent in the field uses); throttle in [0, 1]; brake
 [0, 1], braking when brake > 0.5 (the fitted model has a binary brake). State in the
 SUMO world frame: x east, y north [m], yaw [rad] counter-clockwise from +x, v [m/s].
 
-Actuation imperfection (docs/design.md §3): the applied steer follows the command with a
+Actuation imperfection (docs/design.md §8.4; docs/closed_loop.md, "One tick"): the applied steer follows the command with a
 first-order lag (time constant STEER_LAG) plus seeded Gaussian noise (STEER_NOISE),
 and throttle gets seeded noise (THROTTLE_NOISE), so even a perfect agent's trajectory
 is slightly imperfect.

@@ -192,7 +192,7 @@ def _add_eval(sub: argparse._SubParsersAction) -> None:
     e.add_argument("--rules", default="lb2.0", choices=RULES, help="scoring rules (default lb2.0)")
     e.add_argument("--agent-timeout", type=float, default=AGENT_TIMEOUT,
                    help=f"seconds one agent call (run_step, setup, ...) may take before the route ends as "
-                        f"'Failed - Agent crashed' (default {AGENT_TIMEOUT:g})")
+                        f"'Failed - Agent crashed' (on Ray: 'Failed - Simulation crashed') (default {AGENT_TIMEOUT:g})")
     add_vehicle_option(e)
     add_backend_options(e)
     e.set_defaults(func=_eval)

@@ -107,6 +107,12 @@ def test_bench_soak_and_reproduce_figures(tmp_path, capsys):
     assert r["soak"]["rss"]["peak_mb"] > 0
     assert r["reproduce"]["reproduce_wall_s"] == 3060.5
     assert "51.0 min" in printed
+    # per seed: 3060.5 s over the seeds 0, 1 and 2 = 1020.2 s, 17.0 min; three arms (scimm,
+    # baseline, fixed; the expert is none): the three-arm target, 60 min
+    assert (r["reproduce"]["seeds"], r["reproduce"]["arms"]) == (3, 3)
+    assert r["reproduce"]["reproduce_seed_s"] == 1020.2
+    assert r["reproduce"]["reproduce_target_s"] == 3600.0
+    assert "3 seeds of 3 arms: 17.0 min a seed (target <= 60 min)" in printed
     # an arm and seed: its training plus its evaluation (none recorded: the training alone); a
     # training side by side counts its share of the stage: 800 s / 4 students = 200 s; the
     # expert's evaluation is no arm and seed, even of a seed whose students trained side by side
@@ -116,6 +122,18 @@ def test_bench_soak_and_reproduce_figures(tmp_path, capsys):
     assert line.split()[5:7] == ["20.0", "min,"], line
     assert "soak" in printed
     assert main(["bench", "--reproduce", str(tmp_path)]) == 2
+
+
+def test_reproduce_targets_follow_the_arm_count(tmp_path):
+    """Four or five arms take the five-arm target (75 min a seed); six have none."""
+    from sumo_scimm.bench.figures import reproduce_figure
+    arms = ["baseline", "control", "fixed", "scimm", "smoother", "other"]
+    for n, target in ((4, 4500.0), (5, 4500.0), (6, None)):
+        stages = {f"train {a} s0": 60.0 for a in arms[:n]} | {"collect train": 600.0}
+        (tmp_path / "stages.json").write_text(json.dumps(stages))
+        r = reproduce_figure(str(tmp_path))
+        assert (r["arms"], r["seeds"], r["reproduce_target_s"]) == (n, 1, target)
+        assert r["reproduce_seed_s"] == 600.0 + 60.0 * n
 
 
 def test_one_arm_and_seed_is_trained_evaluated_and_set_beside_the_reproduce_runs_student(tmp_path):

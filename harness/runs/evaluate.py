@@ -32,8 +32,8 @@ from harness.runs.jobs import Job, route_seed
 
 
 # Route runs in one run (repetitions x routes) [-]: the job list and run.jsonc grow with it
-# (run.jsonc by about 230 bytes a run); 100,000 runs of town12_short are about a day of
-# driving on 2 cores (500 in 483 s, docs/reliability.md).
+# (run.jsonc by about 230 bytes a run); 100,000 runs of town12_short are about 18 h of
+# driving on 2 cores (500 in 323 s, docs/reliability.md).
 MAX_ROUTE_RUNS = 100_000
 _MAX_ID_DIGITS = 9  # a --routes-subset bound with more digits names no route of a set
 

@@ -20,7 +20,7 @@ Outputs in the run folder:
                     "Started" without a global record, as the leaderboard writes it
 
 Every route run gets its own seed, derived from the run seed, the route's place in its set
-and the repetition (sumo_scimm.cli), so records do not depend on the number of workers or the
+and the repetition (harness.runs.evaluate, harness.runs.jobs.route_seed), so records do not depend on the number of workers or the
 backend. A worker that dies (kill -9, segfault) has its route recorded as "Failed -
 Simulation crashed" with the reason; a new worker takes over and the run goes on. A worker
 whose agent call (construction, setup, sensors, run_step, destroy) runs KILL_AFTER s past

@@ -83,7 +83,7 @@ class World:
         vt.copy("DEFAULT_VEHTYPE", "background")
         vt.setLength("background", 4.6)
         vt.setWidth("background", 1.9)
-        # CARLA's background traffic drives at ~70 % of the limit (docs/design.md §2.3)
+        # 70 % of the limit: the background speed PDM-Lite assumes (docs/design.md §2.3)
         vt.setSpeedFactor("background", 0.7)
         vt.setSpeedDeviation("background", 0.05)
         vt.copy("background", "hazard")

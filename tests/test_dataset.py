@@ -81,6 +81,25 @@ def test_augmentation_moves_image_and_labels_together(episode):
     np.testing.assert_allclose(back, lp["path"], atol=1e-12)
 
 
+def test_a_rotated_bev_draws_the_route_where_the_rotated_path_label_is(episode):
+    """Rotation ties the image to the labels: the labelled path point 12 m along (after
+    rotating by 0.15 rad) projected into pixels, row = EGO_ROW - x / RES and
+    col = SIZE / 2 - y / RES, lies on the ROUTE channel's column centroid on that row.
+    Measured on the frames 5, 12, 19, ...: within 0.41 px (median 0.12); an image turned
+    the other way than its labels is off by up to 5.2 px (median 4.8). 1 px separates them
+    (the route is drawn a few pixels wide, so its centroid is not exact to the pixel)."""
+    rot = 0.15
+    offsets = []
+    for k in range(5, len(episode), 7):
+        x, y = episode.labels(k, rot=rot)["path"][12]
+        row = episode.bev(k, rot=rot)[B.ROUTE, int(round(B.EGO_ROW - x / B.RES))]
+        if row.sum() == 0:
+            continue
+        offsets.append(np.average(np.arange(B.SIZE), weights=row) - (B.SIZE / 2 - y / B.RES))
+    assert len(offsets) >= 10
+    assert np.abs(offsets).max() < 1.0, offsets
+
+
 def _moved(episode, tmp_path, route_file: str):
     """A copy of ``episode``'s file that says it was collected from ``route_file``."""
     arrays = dict(episode.a, route_file=np.array(route_file))

@@ -6,7 +6,7 @@ import math
 import numpy as np
 
 from scimm import pathspeed as ps
-from scimm.ego import carry, carry_inputs, pose_change
+from scimm.ego import carry, carry_inputs, interp_rows, pose_change
 
 
 def test_pose_change_on_a_circle_is_the_arc_and_the_turn():
@@ -47,3 +47,17 @@ def test_carry_inputs_are_the_documented_matrix():
     expected[1, 2] = 4.0
     np.testing.assert_array_equal(C[0], expected)
     np.testing.assert_array_equal(u[0], [-0.1, 0, 0, 0, 0])
+
+
+def test_interp_rows_is_np_interp_row_by_row_and_holds_the_end_values_outside():
+    """Oracle: np.interp on each row, which holds fp's first and last values outside xp.
+    Rows of 6 increasing xp in 0..~10 with x from 3 m below the first to 3 m past the last;
+    1e-12: the two evaluate the line through the neighbours in a different order (rounding
+    of values up to ~10)."""
+    rng = np.random.default_rng(0)
+    xp = np.cumsum(rng.uniform(0.5, 2.0, (4, 6)), axis=1)
+    fp = rng.normal(size=(4, 6))
+    x = np.sort(rng.uniform(xp[:, :1] - 3.0, xp[:, -1:] + 3.0, (4, 15)), axis=1)
+    assert (x[:, :1] < xp[:, :1]).any() and (x[:, -1:] > xp[:, -1:]).any()  # both ends are passed
+    expected = np.stack([np.interp(x[r], xp[r], fp[r]) for r in range(4)])
+    np.testing.assert_allclose(interp_rows(x, xp, fp), expected, rtol=0, atol=1e-12)

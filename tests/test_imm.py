@@ -154,6 +154,39 @@ def test_missing_measurement_predicts_only():
     np.testing.assert_array_equal(lopsided.P, np.swapaxes(lopsided.P, -1, -2))
 
 
+def test_a_missing_frame_carries_x_p_and_mu_as_filterpy_predicts():
+    """Oracle: filterpy's IMMEstimator with predict() only at the missing frame, and then its
+    mode probabilities set to cbar (mixing and fused estimate recomputed from them). x, P
+    and mu must agree at and after the NaN frame (frames 4-7 read the carried mu). Measured
+    1.8e-15; 1e-9 is the file's filterpy tolerance (order of sums). Sequence 1 has no gap:
+    a batch mixing seen and missing rows."""
+    rng = np.random.default_rng(5)
+    F, Q, R, Pi, mu0, P0 = random_system(rng)
+    z = simulate(rng, F, Q, R, Pi, B=2, T=8)
+    z[0, 3] = np.nan
+    x0 = rng.normal(size=(2, M, N))
+    res = imm_filter(z, F, Q, R, x0, P0, Pi, mu0)
+    for b in range(2):
+        filters = []
+        for j in range(M):
+            kf = KalmanFilter(dim_x=N, dim_z=N)
+            kf.F, kf.Q, kf.R, kf.H = F[j], Q[j], R, np.eye(N)
+            kf.x, kf.P = x0[b, j].copy(), P0[j].copy()
+            filters.append(kf)
+        imm = IMMEstimator(filters, mu0.copy(), Pi)
+        for t in range(8):
+            imm.predict()
+            if np.isnan(z[b, t]).any():
+                imm.mu = imm.cbar.copy()
+                imm._compute_mixing_probabilities()
+                imm._compute_state_estimate()
+            else:
+                imm.update(z[b, t])
+            np.testing.assert_allclose(res.x[b, t], np.ravel(imm.x), atol=1e-9, rtol=0, err_msg=f"x {b} {t}")
+            np.testing.assert_allclose(res.P[b, t], imm.P, atol=1e-9, rtol=0, err_msg=f"P {b} {t}")
+            np.testing.assert_allclose(res.mu[b, t], imm.mu, atol=1e-9, rtol=0, err_msg=f"mu {b} {t}")
+
+
 def test_an_unreachable_mode_changes_nothing():
     # mode 4 has mu0 = 0 and no transition into it, so cbar_4 = 0 (log -inf) every frame: it
     # must stay at mu = 0 without NaN and leave the other four modes as an IMM without it

@@ -98,3 +98,24 @@ def test_weighted_speed_fit_reads_the_speed_now_in_a_stop():
     weighted = abs(z[3] + z[4] * ps.SPEED_MID[0] - labels[0])
     plain = abs(icpt + slope * ps.SPEED_MID[0] - labels[0])
     assert weighted < 0.5 * plain
+
+
+def test_speed_fit_weights_each_interval_by_exp_of_minus_its_midpoint_over_0_6_s():
+    """Labels 5.5, 4.5, ..., 0.5, 0, 0, 0, 0 m/s at the midpoints 0.125, 0.375, ..., 2.375 s.
+    Oracle: np.polyfit(mid, labels, 1, w=np.exp(-mid / 1.2)) (polyfit's w multiplies the
+    unsquared residual, so it is the square root of the weight exp(-mid / 0.6)) gives
+    v0 = 5.764034340, a = -3.406929745 (a 0.66 s weight: 5.727). 1e-8: the literals' last
+    digit; the two least-squares solvers agree to about 1e-12."""
+    labels = np.array([5.5, 4.5, 3.5, 2.5, 1.5, 0.5, 0, 0, 0, 0])
+    wps = np.stack([np.cumsum(0.25 * labels), np.zeros(10)], axis=-1)  # straight, 0.25 s x speed apart
+    z = ps.observe(np.stack([np.arange(20.0), np.zeros(20)], -1), wps)
+    np.testing.assert_allclose(z[3:], [5.764034340, -3.406929745], rtol=0, atol=1e-8)
+
+
+def test_path_residual_is_the_largest_point_distance():
+    # the straight state path (z = 0) against labels that are 1 m off at one of the 20 points:
+    # dp is that 1 m (max), not the mean over the points (0.05 m)
+    path = np.stack([np.arange(20.0), np.zeros(20)], -1)
+    path[7, 1] = 1.0
+    dp, _ = ps.residuals(path, np.zeros((10, 2)), np.zeros(5))
+    assert dp == 1.0

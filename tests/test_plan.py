@@ -6,29 +6,29 @@ import math
 
 import numpy as np
 
-from harness.sim.plan import END_PAD, TARGET_MIN, build_plan, route_lane
+from harness.sim.plan import build_plan, route_lane
 from scenarios import set_path
 from scenarios.routefile import read_routes
 from sumo_nets import load_net
 
-ROUTE = read_routes(set_path("town12_smoke"))[1][0]
+ROUTES = read_routes(set_path("town12_smoke"))[1]
+ROUTE = ROUTES[0]
 
 
 def test_the_target_point_stays_target_min_ahead_on_the_run_on_near_the_end():
     plan = build_plan(ROUTE, load_net(ROUTE.town))
     heading = np.array([math.cos(plan.yaw[-1]), math.sin(plan.yaw[-1])])
     last = len(plan.s) - 1
-    # at the last point: TARGET_MIN straight on past it
-    np.testing.assert_allclose(plan.target_xy(last), plan.xy[-1] + TARGET_MIN * heading, atol=1e-9)
-    # 3 m before the end (dense points are 1 m apart): 4.5 m past the end
-    k = int(np.searchsorted(plan.s, plan.length - 3.0))
-    extra = plan.s[k] + TARGET_MIN - plan.length
-    np.testing.assert_allclose(plan.target_xy(k), plan.xy[-1] + extra * heading, atol=1e-9)
+    # at the last point: TARGET_MIN = 7.5 m straight on past it
+    np.testing.assert_allclose(plan.target_xy(last), plan.xy[-1] + 7.5 * heading, atol=1e-9)
+    # 3 points before the end (route 0's dense points are 0.99699 m apart: 2.99097 m before
+    # it): 7.5 - 2.99097 = 4.50903 m past the end
+    np.testing.assert_allclose(plan.target_xy(last - 3), plan.xy[-1] + 4.50903 * heading, atol=1e-5)  # 5 decimals
     # far from the end: a sparse route point, at least TARGET_MIN ahead
     tp = plan.target_xy(0)
     j = int(np.flatnonzero((plan.xy == tp).all(axis=1))[0])
     assert j in set(plan.sparse.tolist())
-    assert plan.s[j] >= TARGET_MIN
+    assert plan.s[j] >= 7.5
 
 
 def test_the_shown_route_is_the_route_then_a_straight_run_on():
@@ -36,10 +36,25 @@ def test_the_shown_route_is_the_route_then_a_straight_run_on():
     shown = plan.shown_xy
     n = len(plan.xy)
     np.testing.assert_array_equal(shown[:n], plan.xy)
-    assert len(shown) == n + int(END_PAD)
+    assert len(shown) == n + 20  # END_PAD: 20 m of 1 m steps
     steps = np.diff(shown[n - 1:], axis=0)
     heading = np.array([math.cos(plan.yaw[-1]), math.sin(plan.yaw[-1])])
     np.testing.assert_allclose(steps, np.tile(heading, (len(steps), 1)), atol=1e-9)  # 1 m steps straight on
+
+
+def test_commands_run_from_5_m_before_a_passage_to_its_exit_and_limits_are_the_edges():
+    """Route 0: dense points 0.99699 m apart, a left turn through s = 28.85..50.85 m and a
+    right turn through 149.39..162.60 m. From s_in - 5 m (23.85: point 24 at 23.93; point 23
+    is at 22.93) to s_out (point 51 at 50.85): LEFT (1); 144.39 (point 145) to 162.60
+    (point 163): RIGHT (2); LANEFOLLOW (4) elsewhere. Route 2 (0.99529 m apart) goes straight
+    through 83.93..98.66: STRAIGHT (3) on points 80 (79.62) to 99 (98.53). Speed limits:
+    route 0 runs on 50 km/h edges (13.89 m/s in the town12 net), route 2 on 30 km/h (8.33)."""
+    plan = build_plan(ROUTE, load_net(ROUTE.town))
+    assert plan.command.tolist() == [4] * 24 + [1] * 28 + [4] * 93 + [2] * 19 + [4] * 2
+    assert plan.speed_limit.tolist() == [13.89] * 166
+    straight = build_plan(ROUTES[2], load_net(ROUTES[2].town))
+    assert straight.command.tolist() == [4] * 80 + [3] * 20 + [4] * 61
+    assert straight.speed_limit.tolist() == [8.33] * 161
 
 
 def test_a_hazard_is_placed_in_the_lane_the_route_is_in(short_routes):

@@ -69,6 +69,17 @@ def test_a_replanned_path_is_followed_within_two_frames_and_moves_as_the_plan_do
     assert abs(moved_teacher / moved_plan - 1) <= 1e-3
 
 
+def test_point_0_stays_at_the_ego_and_point_1_is_already_filtered():
+    """The plan moves 0.5 m left at frame 10 (points 1..19; point 0 is the ego). The teacher's
+    point 0 is the ego, (0, 0) exactly, in every frame. Point 1 is filtered (FIRST = 1): at
+    frame 10 it lies between the old plan (0) and the new one (0.5), short of the new one
+    (0.49376 measured with the Fixed-IMM); an unfiltered point 1 would be the plan, 0.5 exactly."""
+    path, speed_wps, pose = _replanned()
+    _, teacher, _ = _teach(path, speed_wps, pose, "fixed")
+    assert np.all(teacher[:, 0] == 0.0)
+    assert 0.25 < teacher[10, 1, 1] < 0.5 - 1e-3
+
+
 def test_the_predict_input_rebases_onto_the_previous_plan_and_carries_along_it():
     """Frame 1's input: x' = C (x - z_0) with C the carry by d_1, written out: c0' = e0 + e1 d
     + e2 d^2, c1' = e1 + 2 e2 d, c2' = e2 for e = x - z_0; the speeds untouched."""

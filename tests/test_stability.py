@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from harness.scoring.records import STABILITY
-from harness.scoring.stability import (MIN_SIDE, frame_change, menger_curvature, moving_ticks, path_curvature,
+from harness.scoring.stability import (frame_change, menger_curvature, moving_ticks, path_curvature,
                                        quadratic_fits, second_difference, second_differences, stability,
                                        waypoint_speeds)
 
@@ -117,10 +117,13 @@ def test_three_point_curvature_of_a_circle_and_a_line():
 
 
 def test_three_point_curvature_is_undefined_at_points_closer_than_min_side():
-    wps = np.array([[[0.0, 0.0], [0.5 * MIN_SIDE, 0.0], [1.0, 0.1], [2.0, 0.0]]])
+    # MIN_SIDE is 1 cm (module docstring: a 5 mm side has no direction to bend)
+    wps = np.array([[[0.0, 0.0], [0.005, 0.0], [1.0, 0.1], [2.0, 0.0]],
+                    [[0.0, 0.0], [0.02, 0.0], [1.0, 0.1], [2.0, 0.0]]])
     k = menger_curvature(wps)
     assert math.isnan(k[0, 0])  # its side from the first point is 5 mm
     assert math.isfinite(k[0, 1])
+    assert math.isfinite(k[1, 0])  # a 2 cm side
     assert np.isnan(menger_curvature(np.zeros((1, 3, 2)))).all()  # a prediction that stands
 
 
@@ -166,6 +169,29 @@ def test_moving_ticks_and_the_standing_share():
     assert out["standing_share"] == pytest.approx(3 / 7)  # 0.0, 0.05 and 0.1
     assert out["steering_jerk_moving"] == 0.0
     assert math.isnan(out["speed_variation_kmh"])  # nothing predicted
+
+
+def test_a_tick_at_0_15_m_s_after_one_at_0_15_moves():
+    # moving means faster than 0.1 m/s at the tick and the one before
+    assert moving_ticks(np.array([0.15, 0.15, 0.11, 0.1])).tolist() == [False, True, True, False]
+
+
+def test_path_and_quadratic_curvature_variations_leave_a_standing_tick_out():
+    """v = 4, 4, 4, 0: ticks 1 and 2 move, tick 3 stands. Predictions straight, bent, bent,
+    straight: the change is the bend at tick 1, 0 at tick 2, and the bend again at the standing
+    tick 3, so the moving-only mean is bend / 2 (every tick would give 2 bend / 3).
+    Path (three-point): a 10 m circle, 0.1 at every interior point -> 0.05.
+    Quadratic: y = 0.01 s^2, kappa = 2 c2 = 0.02 -> 0.01. 1e-12: rounding of the fits."""
+    v, z = np.array([4.0, 4.0, 4.0, 0.0]), np.zeros(4)
+    line = np.stack([np.arange(20.0), np.zeros(20)], axis=1)
+    circle = _arc(10.0, 20, 1.0)
+    out = stability({"v": v, "steer": z, "throttle": z, "brake": z, "pred_speed_wps": np.full((4, 10, 2), np.nan),
+                     "pred_path": np.stack([line, circle, circle, line])})
+    assert out["curvature_variation_path"] == pytest.approx(0.05, abs=1e-12)
+    bent = _quadratic_in_arc_length(0.0, 0.01)
+    out = stability({"v": v, "steer": z, "throttle": z, "brake": z, "pred_speed_wps": np.full((4, 10, 2), np.nan),
+                     "pred_path": np.stack([line, bent, bent, line])})
+    assert out["curvature_variation_quadratic"] == pytest.approx(0.01, abs=1e-12)
 
 
 def test_jerk_of_a_known_sequence_counts_moving_ticks_only():

@@ -114,6 +114,30 @@ def test_smoothness_counts_comfortable_one_second_chunks():
     assert route_smoothness(_segment(2, np.zeros(2))) is None  # too short for the filter
 
 
+def _lateral(n: int, lat: float) -> dict:
+    """n samples heading along +x with a steady lateral acceleration ``lat`` [m/s^2] along
+    the right vector (0, -1): acceleration (0, -lat)."""
+    seg = _segment(n, np.zeros(n))
+    return {**seg, "acceleration": np.tile([0.0, -lat, 0.0], (n, 1))}
+
+
+def test_comfort_bounds_of_the_longitudinal_and_lateral_acceleration():
+    """nuPlan's open bounds [m/s^2]: longitudinal (-4.05, 2.40), lateral (-4.89, 4.89); a
+    steady value is its own filtered value (to ~1e-15, far inside the 0.01 m/s^2 margins)."""
+    assert comfortable(_segment(20, np.full(20, 2.39)))
+    assert not comfortable(_segment(20, np.full(20, 2.41)))
+    assert comfortable(_segment(20, np.full(20, -4.04)))
+    assert not comfortable(_segment(20, np.full(20, -4.06)))
+    for sign in (1.0, -1.0):
+        assert comfortable(_lateral(20, sign * 4.88))
+        assert not comfortable(_lateral(20, sign * 4.90))
+
+
+def test_efficiency_keeps_a_checkpoint_of_exactly_1000_percent():
+    """Bench2Drive skips values > 1000 only: (1000 + 0) / 2 = 500."""
+    assert route_efficiency([speed(1000.0), speed(0.0)]) == 500.0
+
+
 def test_jerk_takes_bench2drives_0_1_s_spacing():
     # a ramp of the longitudinal acceleration, 0.45 m/s^2 per 0.05 s tick = 9 m/s^3; the
     # Savitzky-Golay derivative is exact on a line and reads 0.45 / 0.1 = 4.5 > 4.13: fails

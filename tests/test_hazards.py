@@ -3,6 +3,8 @@
 ``make_hazard`` from the route file's type name (no simulation is started here)."""
 from __future__ import annotations
 
+from types import SimpleNamespace
+
 import numpy as np
 import pytest
 
@@ -124,3 +126,42 @@ def test_the_scoring_reads_timeouts_and_two_ways_from_the_registry(short_routes)
     for kind, h in HAZARDS.items():
         out = scenario_timeouts(stood, plan, [(kind, 10.0, 60.0, {})])
         assert out == (["Agent timed out a scenario"] if h.timeout else [])
+
+
+def _stood(s: float, seconds: int) -> tuple[dict, SimpleNamespace]:
+    """An ego standing at route s [m] (a 1 m dense plan, s = index) for ``seconds`` s, 1 s rows."""
+    plan = SimpleNamespace(s=np.arange(101.0))
+    return {"route_index": np.full(seconds + 1, s), "t": np.arange(seconds + 1.0)}, plan
+
+
+def test_a_scenario_times_out_after_more_than_240_s():
+    """Trigger at s = 10 m, site at 60 m, the ego standing at 50 m from t = 0: 240 s is not
+    more than 240 s; 241 s (the log's last row) is."""
+    span = [("ParkedObstacle", 10.0, 60.0, {})]
+    assert scenario_timeouts(*_stood(50.0, 240), span) == []
+    assert scenario_timeouts(*_stood(50.0, 241), span) == ["Agent timed out a scenario"]
+
+
+def test_a_scenario_ends_10_m_past_its_site():
+    """Site at 60 m: standing 300 s at 69 m, the scenario still runs (times out); at 70 m it
+    ended at t = 0 (no time out)."""
+    span = [("ParkedObstacle", 10.0, 60.0, {})]
+    assert scenario_timeouts(*_stood(69.0, 300), span) == ["Agent timed out a scenario"]
+    assert scenario_timeouts(*_stood(70.0, 300), span) == []
+
+
+def test_timeout_active_runs_240_s_from_the_trigger_up_to_10_m_past_the_site():
+    """A ParkedObstacle triggered at s = 20 m at t = 5 s, site 30 m further (50 m): running
+    at 245.0 s (240 s after) and not at 245.05; running at s = 59.9 m and not at 60.0 m.
+    (A fake plan whose projection is x itself; no simulation.)"""
+    plan = SimpleNamespace(path=SimpleNamespace(project=lambda x, y: (x, 0.0)))
+    h = Hazard("ParkedObstacle_1", "ParkedObstacle", (20.0, 0.0, 0.0, 0.0), {"distance": "30"})
+    built = HazardActor(h, plan, None, np.random.default_rng(0), 0)
+    assert (built.trigger_s, built.site_s) == (20.0, 50.0)
+    built.update(19.0, 4.0, 5.0)
+    assert not built.started
+    built.update(20.0, 5.0, 5.0)  # the trigger: started, t0 = 5 s
+    assert built.timeout_active(49.0, 245.0)
+    assert not built.timeout_active(49.0, 245.05)
+    assert built.timeout_active(59.9, 10.0)
+    assert not built.timeout_active(60.0, 10.0)

@@ -10,8 +10,7 @@ import torch
 
 from controller.lookahead import lookahead_point
 from controller.pid import LAT_KI, LAT_KP, SPEED_KD, SPEED_KI, SPEED_KP, LateralPID
-from controller.simlingo import (CREEP_TICKS, PATH_STEP, STUCK_TICKS, SimLingoController, desired_speed,
-                                resample_path)
+from controller.simlingo import PATH_STEP, SimLingoController, desired_speed, resample_path
 from controller.vehicle import Control
 from harness.loop.agent import Prediction, load_agent
 
@@ -92,12 +91,15 @@ def test_brake_rule(desired, speed, brake):
 
 
 def test_creep_after_forty_seconds_standing():
+    # standing = below 0.1 m/s, so 0.05 m/s counts. 40 s at 20 Hz = 800 ticks of braking (the
+    # network's command: desired speed 0); on the 801st the creep starts: 0.75 s = 15 ticks of
+    # throttle 0.4, brake released; then the network's brake again
     c = SimLingoController()
-    stopped = [c.step(STRAIGHT, wps_at(0.0), 0.0) for _ in range(STUCK_TICKS)]
+    stopped = [c.step(STRAIGHT, wps_at(0.0), 0.05) for _ in range(800)]
     assert all(ctl.brake == 1.0 for ctl in stopped)
-    creep = [c.step(STRAIGHT, wps_at(0.0), 0.0) for _ in range(CREEP_TICKS)]
+    creep = [c.step(STRAIGHT, wps_at(0.0), 0.05) for _ in range(15)]
     assert all(ctl.throttle == 0.4 and ctl.brake == 0.0 for ctl in creep)
-    assert c.step(STRAIGHT, wps_at(0.0), 0.0).brake == 1.0  # back to the network's command
+    assert c.step(STRAIGHT, wps_at(0.0), 0.05).brake == 1.0  # back to the network's command
 
 
 def test_resample_path_every_tenth_of_a_metre_from_the_origin():

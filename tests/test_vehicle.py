@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from controller.pid import LateralPID, PID, SpeedPID
-from controller.vehicle import DT, LF, LR, EgoState, EgoVehicle, Control, bicycle_step, next_speed
+from controller.vehicle import DT, EgoState, EgoVehicle, Control, bicycle_step, next_speed
 from harness.sim.contacts import overlaps
 
 
@@ -24,15 +24,59 @@ def test_bicycle_goes_straight_without_steer_and_turns_right_with_positive_steer
     s = bicycle_step(EgoState(0.0, 0.0, 0.0, 10.0), 0.0, 10.0)
     assert (s.x, s.y, s.yaw) == pytest.approx((10.0 * DT, 0.0, 0.0))
     r = bicycle_step(EgoState(0.0, 0.0, 0.0, 10.0), 0.5, 10.0)
-    # the other textbook form of the kinematic bicycle (centre of gravity LR ahead of the rear
-    # axle): slip angle tan(beta) = LR / L tan(delta), yaw rate v cos(beta) tan(delta) / L,
-    # velocity along yaw + beta; half lock = 0.5 x 0.36848336 rad of wheel angle, to the right
-    delta, wheelbase = -0.5 * 0.36848336, LF + LR
-    beta = math.atan(LR / wheelbase * math.tan(delta))
-    assert r.yaw == pytest.approx(10.0 * math.cos(beta) * math.tan(delta) / wheelbase * DT, rel=1e-12)
-    assert (r.x, r.y) == pytest.approx((10.0 * math.cos(beta) * DT, 10.0 * math.sin(beta) * DT), rel=1e-12)
+    # by hand from the fitted constants (LF -0.090769015, LR 1.4178275, full lock 0.36848336 rad):
+    # delta = -0.5 x 0.36848336 = -0.18424168 rad (to the right), L = LF + LR = 1.327058485,
+    # beta = atan(LR / L tan(delta)) = -0.1965314791; x = 10 cos(beta) 0.05, y = 10 sin(beta) 0.05,
+    # yaw = 10 / LR sin(beta) 0.05. abs 1e-10: the literals are rounded to 10 decimals
+    assert r.yaw == pytest.approx(-0.0688619600, abs=1e-10)
+    assert (r.x, r.y) == pytest.approx((0.4903748849, -0.0976343806), abs=1e-10)
     assert r.yaw < 0  # clockwise
     assert r.y < 0  # to the right
+
+
+def test_bicycle_yaw_wraps_into_minus_pi_to_pi():
+    # yaw 3.1 turning left at full lock, 10 m/s: delta = 0.36848336, beta = atan(1.4178275 /
+    # 1.327058485 tan(delta)) = 0.3912607316, yaw = 3.1 + 10 / 1.4178275 sin(beta) 0.05 =
+    # 3.2344853922, past pi: wrapped to 3.2344853922 - 2 pi = -3.0486999150
+    s = bicycle_step(EgoState(0.0, 0.0, 3.1, 10.0), -1.0, 10.0)
+    assert s.yaw == pytest.approx(-3.0486999150, abs=1e-10)  # 10 decimals
+
+
+def test_steering_lag_moves_a_third_of_the_way_per_tick():
+    # first-order lag, time constant 0.1 s: alpha = dt / (0.1 + dt) = 0.05 / 0.15 = 1/3 per tick;
+    # from 0 towards 1: 1/3, then 1/3 + 1/3 (1 - 1/3) = 5/9
+    car = EgoVehicle(EgoState(0.0, 0.0, 0.0, 5.0), np.random.default_rng(0), noise=False)
+    car.step(Control(1.0, 0.0, 0.0))
+    assert car.steer_applied == pytest.approx(1 / 3, abs=1e-15)  # float rounding only
+    car.step(Control(1.0, 0.0, 0.0))
+    assert car.steer_applied == pytest.approx(5 / 9, abs=1e-15)
+
+
+def test_applied_steer_never_exceeds_full_lock_with_noise():
+    # full right command plus noise (std 0.01): the lagged steer reaches the clip at 1.0
+    # (half the noise draws push past it) and stays within it
+    car = EgoVehicle(EgoState(0.0, 0.0, 0.0, 5.0), np.random.default_rng(1))
+    applied = []
+    for _ in range(200):
+        car.step(Control(1.0, 0.0, 0.0))
+        applied.append(car.steer_applied)
+    assert max(applied) == 1.0
+
+
+@pytest.mark.parametrize("brake, v_after", [(0.5, 5.0), (0.51, None)])
+def test_brake_engages_strictly_above_one_half(brake, v_after):
+    # throttle 0 is inside the 0.3 dead band: without braking the speed is kept exactly
+    car = EgoVehicle(EgoState(0.0, 0.0, 0.0, 5.0), np.random.default_rng(0), noise=False)
+    s = car.step(Control(0.0, 0.0, brake))
+    if v_after is not None:
+        assert s.v == v_after
+    else:
+        assert s.v < 5.0
+
+
+def test_throttle_dead_band_ends_at_0_3():
+    assert next_speed(5.0, 0.2999, False) == 5.0  # inside the band: speed kept
+    assert next_speed(5.0, 0.3, False) != 5.0  # 0.3 itself is outside it: the polynomial applies
 
 
 def test_actuation_noise_is_seeded():
@@ -65,6 +109,41 @@ def test_lateral_pid_zero_on_a_straight_path_and_signs():
     assert LateralPID().step(right, 5.0) == pytest.approx(min(1.0, (3.118357247806046 + 0.6406067986034124) * e))
 
 
+def test_lateral_pid_derivative_is_the_newest_minus_the_previous_error():
+    # target at 9 deg to the left: error -9/90 = -0.1. First step (no derivative, window [-0.1]):
+    # (Kp + Ki)(-0.1) = (3.118357247806046 + 0.6406067986034124)(-0.1) = -0.3758964046.
+    # Then straight ahead, error 0: Kp 0 + Kd (0 - (-0.1)) + Ki mean(-0.1, 0)
+    # = 0.13782508892 - 0.03203033993 = 0.1057947490. abs 1e-10: literals rounded to 10 decimals
+    pid = LateralPID()
+    a = math.radians(9.0)
+    assert pid.steer_to(math.cos(a), math.sin(a)) == pytest.approx(-0.3758964046, abs=1e-10)
+    assert pid.steer_to(1.0, 0.0) == pytest.approx(0.1057947490, abs=1e-10)
+
+
+def test_lateral_pid_integral_is_the_mean_of_the_last_six_errors():
+    # seven steps: six at error +0.1 (target 9 deg to the right), then one at 0. The window
+    # keeps the last 6 errors (five 0.1 and one 0): Ki 0.5 / 6 = 0.0533838999; derivative
+    # Kd (0 - 0.1) = -0.1378250889; P 0: out = -0.0844411890
+    pid = LateralPID()
+    a = math.radians(-9.0)
+    for _ in range(6):
+        pid.steer_to(math.cos(a), math.sin(a))
+    assert pid.steer_to(1.0, 0.0) == pytest.approx(-0.0844411890, abs=1e-10)  # 10 decimals
+
+
+def test_lateral_pid_output_is_clipped_to_plus_minus_one():
+    # target 90 deg to the right: error 1, (Kp + Ki) x 1 = 3.759 unclipped
+    assert LateralPID().steer_to(0.0, -1.0) == 1.0
+    assert LateralPID().steer_to(0.0, 1.0) == -1.0
+
+
+def test_lateral_pid_lookahead_is_clamped_to_2_4_and_10_5_metres():
+    # 0.1 m per index, clip(0.9755 v[km/h] + 1.915, 24, 105): at rest 1.915 -> 24 -> 2.4 m;
+    # at 40 m/s (144 km/h) 142.39 -> 105 -> 10.5 m. abs 1e-12: 24 x 0.1 is not exactly 2.4
+    assert LateralPID.lookahead(0.0) == pytest.approx(2.4, abs=1e-12)
+    assert LateralPID.lookahead(40.0) == pytest.approx(10.5, abs=1e-12)
+
+
 def test_speed_pid_brake_rule():
     assert SpeedPID().step(0.3, 0.0) == (0.0, 1.0)  # desired < 0.4 m/s
     assert SpeedPID().step(5.0, 5.6) == (0.0, 1.0)  # 12 % too fast
@@ -87,6 +166,17 @@ def test_oriented_box_contacts():
                         np.array([[2.0, 2.0]]))[0]
     assert overlaps(ego, np.array([[2.45 + math.sqrt(2) - 0.01, 0.0]]), np.array([math.pi / 4]),
                     np.array([[2.0, 2.0]]))[0]
+
+
+def test_oriented_box_contacts_separated_only_by_the_other_boxs_axis():
+    # a 2 x 2 box at 45 deg beside the ego's front-left corner (2.45, 1.05). On the ego's axes
+    # neither centre separates (x: 3.0 < 2.45 + sqrt 2; y: 2.2 < 1.05 + sqrt 2). On the box's
+    # diagonal axis (1, 1)/sqrt 2 the ego reaches 2.45/sqrt 2 + 1.05/sqrt 2, so the gap is
+    # (x - 2.45 + y - 1.05)/sqrt 2 against the box's half size 1:
+    # (3.0, 2.2): (0.55 + 1.15)/sqrt 2 = 1.20 > 1, apart; (2.8, 2.0): (0.35 + 0.95)/sqrt 2 = 0.92 < 1, touching
+    ego = (0.0, 0.0, 0.0, 4.9, 2.1)
+    got = overlaps(ego, np.array([[3.0, 2.2], [2.8, 2.0]]), np.full(2, math.pi / 4), np.array([[2.0, 2.0]] * 2))
+    assert got.tolist() == [False, True]
 
 
 def test_only_boxes_whose_circumcircles_meet_the_egos_are_tested_as_numpy_selects_them():

@@ -61,7 +61,7 @@ def write_atomic(path: Path, content: str | bytes | Callable[[Path], None], shar
     tmp = path.with_name(path.name + (f".tmp{os.getpid()}" if shared else ".tmp"))
     with _replacing(path, tmp):
         if isinstance(content, str):
-            tmp.write_text(content)
+            tmp.write_text(content, encoding="utf-8", errors="backslashreplace")
         elif isinstance(content, bytes):
             tmp.write_bytes(content)
         else:

@@ -14,6 +14,8 @@ from pathlib import Path
 
 from files.atomic import write_atomic
 
+MAX_TEXT = 512 * 2**20  # [bytes] of decompressed text: a run of 100,000 route runs writes about 180 MB
+
 
 def stored(path: Path) -> Path | None:
     """``path`` if it is a file, else ``path.gz`` if that is one, else None."""
@@ -27,16 +29,21 @@ def stored(path: Path) -> Path | None:
 def read_text(path: Path) -> str:
     """The text of ``path``, or of ``path.gz`` when only that exists (UTF-8); a file whose
     name ends in ``.gz``, given or found, is decompressed. OSError (FileNotFoundError naming
-    ``path``) when neither is a file; a damaged or cut-short ``.gz`` raises OSError too
-    (gzip.BadGzipFile)."""
+    ``path``) when neither is a file; a damaged or cut-short ``.gz``, or one that would
+    decompress to more than MAX_TEXT bytes (a "zip bomb"), raises OSError too
+    (gzip.BadGzipFile), having decompressed at most that much."""
     found = stored(path)
     if found is None:
         raise FileNotFoundError(2, "No such file (nor a .gz of it)", str(path))
     if found.name.endswith(".gz"):
         try:
-            return gzip.decompress(found.read_bytes()).decode()
+            with gzip.open(found, "rb") as f:
+                data = f.read(MAX_TEXT + 1)
         except (EOFError, zlib.error) as exc:  # cut short, or corrupt inside
             raise gzip.BadGzipFile(str(exc)) from None
+        if len(data) > MAX_TEXT:
+            raise gzip.BadGzipFile(f"it decompresses to more than {MAX_TEXT // 2**20} MB")
+        return data.decode()
     return found.read_text()
 
 

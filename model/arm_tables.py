@@ -15,8 +15,12 @@
 from __future__ import annotations
 
 import csv
+import io
 import math
+import os
 import re
+import shutil
+import tempfile
 from pathlib import Path
 
 from harness.scoring import stability
@@ -75,11 +79,45 @@ def size_agreement(paper: float, low: float, high: float) -> str:
     return AGREES if low <= paper <= high else DIFFERS
 
 
-def _write_csv(path: Path, rows: list[dict]) -> None:
-    with open(path, "w", newline="") as fh:
-        w = csv.DictWriter(fh, fieldnames=list(rows[0]))
-        w.writeheader()
-        w.writerows(rows)
+def _csv_text(rows: list[dict]) -> str:
+    """CSV rows as the text of a .csv file (a header from the first row's columns)."""
+    buf = io.StringIO(newline="")
+    w = csv.DictWriter(buf, fieldnames=list(rows[0]))
+    w.writeheader()
+    w.writerows(rows)
+    return buf.getvalue()
+
+
+def _table_files(stem: str, csv_rows: list[dict], md: str) -> dict[str, str]:
+    """{file name: text} of a table: ``stem.csv`` (if it has rows) and ``stem.md``."""
+    return {**({f"{stem}.csv": _csv_text(csv_rows)} if csv_rows else {}), f"{stem}.md": md + "\n"}
+
+
+def write_all(out: Path, files: dict[str, str]) -> None:
+    """Write every file of {name: text} into ``out``, all or none: each is written into a
+    temporary folder in ``out`` first, and only when all are there are they renamed into
+    place (stops held meanwhile: files.atomic.signals_held). A write that fails (a full
+    disk) leaves ``out`` as it was and raises an OSError naming the file meant; only a
+    rename that fails (a folder in the way of a table) can leave the tables before it
+    renamed."""
+    from files.atomic import signals_held
+    out.mkdir(parents=True, exist_ok=True)
+    try:
+        stage = Path(tempfile.mkdtemp(prefix=".tables.tmp", dir=out))
+    except OSError as exc:
+        raise OSError(exc.errno, exc.strerror or str(exc), str(out)) from exc
+    name = ""
+    try:
+        for name, text in files.items():
+            with open(stage / name, "w", newline="") as fh:
+                fh.write(text)
+        with signals_held():
+            for name in files:
+                os.replace(stage / name, out / name)
+    except OSError as exc:
+        raise OSError(exc.errno, exc.strerror or str(exc), str(out / name)) from exc
+    finally:
+        shutil.rmtree(stage, ignore_errors=True)
 
 
 def references(arms: list[str]) -> list[str]:
@@ -89,24 +127,23 @@ def references(arms: list[str]) -> list[str]:
     return refs or arms[:1]
 
 
-def paired_tables(runs: dict[str, list[Path]], out: Path,
-                  seeds: dict[str, list[int]] | None = None) -> tuple[str, dict[str, dict[str, list[dict]]]]:
-    """Tables 3 and 4 against every reference (module docstring) written to ``out``; returns
-    their Markdown and {reference: {table stem: CSV rows}}. ``seeds``: each arm's seed index
-    of each run (default: the run's place in its list); arms are paired by it."""
-    out.mkdir(parents=True, exist_ok=True)
-    texts, rows = [], {}
+def paired_tables(runs: dict[str, list[Path]], seeds: dict[str, list[int]] | None = None
+                  ) -> tuple[str, dict[str, dict[str, list[dict]]], dict[str, str]]:
+    """Tables 3 and 4 against every reference (module docstring): their Markdown, {reference:
+    {table stem: CSV rows}} and their files {name: text}; nothing is written. ``seeds``:
+    each arm's seed index of each run (default: the run's place in its list); arms are
+    paired by it."""
+    texts, rows, files = [], {}, {}
     for i, ref in enumerate(references(list(runs))):
         ordered = {ref: runs[ref], **{a: f for a, f in runs.items() if a != ref}}
         suffix = "" if i == 0 else f"_vs_{ref}"
         texts.append(f"## Against the {ref} (seed-paired intervals: arm - {ref})")
         rows[ref] = {}
         for stem, csv_rows, md in tables(ordered, seeds=seeds):
-            _write_csv(out / f"{stem}{suffix}.csv", csv_rows)
-            (out / f"{stem}{suffix}.md").write_text(md + "\n")
+            files.update(_table_files(f"{stem}{suffix}", csv_rows, md))
             texts.append(md)
             rows[ref][stem] = csv_rows
-    return "\n\n".join(texts), rows
+    return "\n\n".join(texts), rows, files
 
 
 def claims(rows: dict[str, dict[str, list[dict]]], common: bool = False) -> tuple[list[dict], str]:
@@ -248,26 +285,31 @@ def write_set_tables(runs: dict[str, list[Path]], out: Path,
     """Every table of the module docstring for the arms' runs on one evaluation set, written
     to ``out`` (``table{3,4}[_common][_vs_control]``, ``b2d``, ``per_hazard``,
     ``claims[_common]`` as .csv and .md, ``hazard_ds`` as .md); returns their Markdown and {arm:
-    mean DS} (Table 3's). ``seeds``: each arm's seed index of each run (``paired_tables``)."""
+    mean DS} (Table 3's). ``seeds``: each arm's seed index of each run (``paired_tables``).
+    Every file of every run folder (results.json, records.csv, records.jsonl) is read and
+    checked before anything is written, and the tables are written all or none
+    (``write_all``): a damaged folder is refused (ReportError, BadInput) with ``out`` as it was."""
     from harness.scoring.b2d_tables import b2d_tables
-    text, rows = paired_tables(runs, out, seeds)
+    from harness.scoring.report import check_run
+    for folders in runs.values():
+        for folder in folders:
+            check_run(folder)  # results.json and records.csv, before the slower steps below
+    extra = b2d_tables(runs)  # reads and checks every records.jsonl
+    text, rows, files = paired_tables(runs, seeds)
     parts = [text]
-    extra = b2d_tables(runs)
     for stem, csv_rows, md in extra:
-        _write_csv(out / f"{stem}.csv", csv_rows)
-        (out / f"{stem}.md").write_text(md + "\n")
+        files.update(_table_files(stem, csv_rows, md))
     for i, common in enumerate((False, True)):
         claim_rows, claim_md = claims(rows, common)
         if claim_rows:
-            stem = "claims_common" if common else "claims"
-            _write_csv(out / f"{stem}.csv", claim_rows)
-            (out / f"{stem}.md").write_text(claim_md + "\n")
+            files.update(_table_files("claims_common" if common else "claims", claim_rows, claim_md))
             parts.insert(i, claim_md)
     per_hazard = next((r for stem, r, _ in extra if stem == "per_hazard"), None)
     if per_hazard:
         md = hazard_ds(per_hazard, list(runs))
-        (out / "hazard_ds.md").write_text(md + "\n")
+        files["hazard_ds.md"] = md + "\n"
         parts.append(md)
     parts += [md for stem, _, md in extra if stem == "b2d"]
     first = next(iter(rows.values()))["table3"]
+    write_all(out, files)
     return "\n\n".join(parts), {r["arm"]: float(r["DS"]) for r in first}

@@ -51,12 +51,18 @@ def load_history(path: Path) -> Curves:
         val = {k: [float(r["val"][k]) for r in records] for k in ("path", "speed_wps")} \
             if records and all("val" in r for r in records) else {}
         train = {k: [float(r["train"][k]) for r in records] for k in records[0]["train"]} if records else {}
-    except (OSError, ValueError, KeyError, TypeError) as exc:
-        raise BadInput(f"{found} is not a training history ({type(exc).__name__}: {exc}); use the folder of a "
-                       "'sumo-scimm train' run") from None
+        chosen = h.get("chosen_epoch")
+    except (OSError, ValueError, KeyError, TypeError, AttributeError, OverflowError, RecursionError) as exc:
+        raise BadInput(f"{found} is not a training history ({type(exc).__name__}: {str(exc)[:80]}); use the folder "
+                       "of a 'sumo-scimm train' run") from None
     if not epochs:
         raise BadInput(f"{found} holds no epoch; use the folder of a finished 'sumo-scimm train' run")
-    chosen = int(h.get("chosen_epoch") or epochs[-1])
+    if isinstance(chosen, float) and chosen.is_integer():
+        chosen = int(chosen)  # 3.0: the same epoch
+    if chosen is not None and (isinstance(chosen, bool) or not isinstance(chosen, int)):
+        raise BadInput(f"{found}: chosen_epoch is {repr(chosen)[:40]}, not an epoch number: the file is damaged; "
+                       "use the folder of a 'sumo-scimm train' run")
+    chosen = chosen or epochs[-1]
     if chosen not in epochs:
         raise BadInput(f"{found}: chosen epoch {chosen} is not among its epochs {epochs[0]}..{epochs[-1]}")
     return Curves(epochs, val, train, chosen)

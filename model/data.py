@@ -43,6 +43,7 @@ import torch
 
 from harness.sensors.bev import EGO_ROW, RES, ROUTE
 from harness.common.errors import BadInput
+from harness.common.npz import read_npz
 from model import cache as bevcache
 from model.loss import phi
 from scimm.teacher import episode_files
@@ -87,12 +88,12 @@ def load_teacher(folder: Path, method: str, stems: list[str], lengths: list[int]
     shapes = {"path": (20, 2), "speed": (10,), "mu": (5,)}
     for stem, n in zip(stems, lengths):
         f = tdir / f"{stem}.npz"
-        try:
-            with np.load(f, allow_pickle=False) as z:
-                arrays = {k: np.asarray(z[k], dtype=np.float32) for k in shapes}
-        except (OSError, KeyError, ValueError) as exc:
-            raise BadInput(f"teacher file {f} is missing or unreadable ({exc}): rerun 'sumo-scimm teacher'") from None
+        arrays = read_npz(f, "teacher file", "rerun 'sumo-scimm teacher'", tuple(shapes))
         for k, shape in shapes.items():
+            if arrays[k].dtype.kind not in "biuf":
+                raise BadInput(f"teacher file {f}: '{k}' holds {arrays[k].dtype} values, not numbers: "
+                               "rerun 'sumo-scimm teacher'")
+            arrays[k] = arrays[k].astype(np.float32)
             if arrays[k].shape != (n, *shape) or not np.isfinite(arrays[k]).all():
                 raise BadInput(f"teacher file {f}: '{k}' has shape {arrays[k].shape} or non-finite values, "
                                f"expected {(n, *shape)} finite (one row per frame): rerun 'sumo-scimm teacher'")

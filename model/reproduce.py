@@ -56,23 +56,42 @@ def select_arms(text: str | None) -> tuple[str, ...]:
     bad = [a for a in asked if a not in names]
     if bad:
         raise BadInput(f"--arms: unknown arm {bad[0]!r} (arms: {', '.join(names)}; e.g. --arms baseline,scimm)")
+    twice = next((a for i, a in enumerate(asked) if a in asked[:i]), None)
+    if twice:
+        raise BadInput(f"--arms {text!r}: arm {twice!r} is named twice (name each arm once, "
+                       "e.g. --arms baseline,scimm)")
     return tuple(a for a in names if a in asked)
 
 
+MAX_SEED = 2 ** 64 - 1  # the largest seed a training takes (torch.manual_seed)
+MAX_SEEDS = 1000  # seeds in one reproduce; a longer experiment runs in parts
+
+
 def parse_seeds(text: str) -> range:
-    """The seeds of ``--seeds``: ``K`` is seeds 0..K-1 (K >= 1), ``A-B`` seeds A to B (0 <= A
-    <= B); BadInput otherwise."""
+    """The seeds of ``--seeds``: ``K`` is seeds 0..K-1 (1 <= K <= MAX_SEEDS), ``A-B`` seeds A
+    to B (0 <= A <= B <= MAX_SEED, at most MAX_SEEDS of them); BadInput otherwise."""
     m = re.fullmatch(r"\s*(\d+)\s*(?:-\s*(\d+)\s*)?", text)
     if not m:
         raise BadInput(f"--seeds: expected K (seeds 0..K-1) or A-B (seeds A to B), got {text!r} (e.g. --seeds 3-5)")
-    first, last = int(m[1]), m[2]
+    shown = text.strip()[:60]
+    if any(g and len(g.lstrip("0")) > len(str(MAX_SEED)) for g in m.groups()):  # not read as a number at all
+        raise BadInput(f"--seeds {shown!r}: a seed is at most {MAX_SEED} (2**64 - 1, the largest a training takes)")
+    first, last = int(m[1]), None if m[2] is None else int(m[2])  # digits only: whole numbers >= 0
     if last is None:
         if first < 1:
             raise BadInput(f"--seeds must be >= 1 (got {first})")
-        return range(first)
-    if int(last) < first:
+        seeds = range(first)
+    elif last < first:
         raise BadInput(f"--seeds {text!r}: the range ends before it starts (e.g. --seeds {last}-{first})")
-    return range(first, int(last) + 1)
+    elif last > MAX_SEED:
+        raise BadInput(f"--seeds {shown!r}: a seed is at most {MAX_SEED} (2**64 - 1, the largest a training takes)")
+    else:
+        seeds = range(first, last + 1)
+    count = seeds.stop - seeds.start  # len() overflows past sys.maxsize
+    if count > MAX_SEEDS:
+        raise BadInput(f"--seeds {shown!r} asks for {count} seeds, at most {MAX_SEEDS} in one reproduce: run a "
+                       f"long experiment in parts (e.g. --seeds 0-9, then --seeds 10-19)")
+    return seeds
 
 
 def pooled_runs(folder: Path, arms: tuple[str, ...]) -> tuple[dict[str, list[Path]], dict[str, list[int]]]:

@@ -205,6 +205,9 @@ def load_tree(path: Path) -> Element:
         raise RouteFileError(None, f"{path}: refused ({type(exc).__name__}: DTDs and entities are not allowed)") from None
     except ParseError as exc:
         raise RouteFileError(None, f"{path}: malformed XML ({exc})") from None
+    except (LookupError, ValueError) as exc:  # an XML declaration naming an encoding Python cannot decode
+        # with (UnicodeError is a ValueError); route files are UTF-8
+        raise RouteFileError(None, f"{path}: cannot decode it ({type(exc).__name__}: {exc}): save it as UTF-8") from None
     if root.tag != "routes":
         raise RouteFileError(None, f"{path}: root element is <{root.tag}>, expected <routes>")
     return root

@@ -72,15 +72,16 @@ def evaluate(data: Path, files: list[Path], methods: tuple[str, ...] = tch.METHO
     (scimm.lag) of the episode files against their written teachers
     ``data/teacher/<method>/`` (scimm.teacher file contract; ``methods`` must include scimm,
     whose posterior groups the frames); each file is read once."""
+    from harness.expert.dataset import read_episode  # pulls OpenCV and the nets: imported where used
     episodes, sits, fits = [], [], []
     for f in files:
-        with np.load(f, allow_pickle=False) as a:
-            ep = {"raw": {"path": a["path"], "speed": pathspeed.label_speeds(a["speed_wps"])},
-                  "pose": np.stack([a["x"], a["y"], a["yaw"]], axis=-1), "v": a["v"],
-                  "light": a["flag_light"], "travel": np.linalg.norm(a["speed_wps"][:, -1], axis=-1)}
-            ep.update({m: tch.load_teacher(data, m, f.stem) for m in methods})
-            sits.append(situations(a))
-            fits.append({"path": a["path"], "speed_wps": a["speed_wps"], "mu": ep["scimm"]["mu"]})
+        a = read_episode(f, {**tch.INPUT_ROWS, "v": (), "target_speed": ()})
+        ep = {"raw": {"path": a["path"], "speed": pathspeed.label_speeds(a["speed_wps"])},
+              "pose": np.stack([a["x"], a["y"], a["yaw"]], axis=-1), "v": a["v"],
+              "light": a["flag_light"], "travel": np.linalg.norm(a["speed_wps"][:, -1], axis=-1)}
+        ep.update({m: tch.load_teacher(data, m, f.stem) for m in methods})
+        sits.append(situations(a))
+        fits.append({"path": a["path"], "speed_wps": a["speed_wps"], "mu": ep["scimm"]["mu"]})
         episodes.append(ep)
     mus = {m: [ep[m]["mu"] for ep in episodes] for m in methods}
     align, still = lag_tables(episodes, methods)

@@ -39,7 +39,7 @@ import numpy as np
 
 from files.atomic import write_atomic
 from scimm import pathspeed, planref
-from scimm.cues import cue_vector
+from scimm.cues import _SOURCE as CUE_SOURCES, CUES, cue_vector
 from scimm.ego import carry_inputs, pose_change
 from scimm.imm import imm_filter
 from scimm.modes import IMMConfig, fixed_adjustment, scene_adjustment
@@ -47,6 +47,9 @@ from scimm.scene import conditioned
 from scimm.smoother import imm_smooth
 
 METHODS = ("fixed", "scimm", "smoother")
+# what load_inputs reads of an episode, one row per frame (harness.expert.dataset.check_rows)
+INPUT_ROWS = {"x": (), "y": (), "yaw": (), "path": (20, 2), "speed_wps": (10, 2),
+              **{k: () for name in CUES for k in CUE_SOURCES[name]}}
 BATCH = 16  # episodes per IMM batch
 
 
@@ -73,12 +76,13 @@ def load_inputs(file: Path, path_state: str = IMMConfig.path_state
     expert's path (T, 20, 2) [m, ego frame]) of one episode file. z's path part is that of
     ``path_state`` (scimm.modes.IMMConfig): the heading quadratic of each path ("ego") or
     the change of the plan from the previous frame's ("plan", scimm.planref)."""
-    with np.load(file, allow_pickle=False) as a:
-        pose = np.stack([a["x"], a["y"], a["yaw"]], axis=-1).astype(float)
-        z = pathspeed.observe(a["path"], a["speed_wps"])
-        if path_state == "plan":
-            z[:, :3] = planref.plan_change(a["path"], pose)[0]
-        return z, cue_vector(a), pose, np.asarray(a["path"], dtype=float)
+    from harness.expert.dataset import read_episode  # pulls OpenCV and the nets: imported where used
+    a = read_episode(file, INPUT_ROWS)
+    pose = np.stack([a["x"], a["y"], a["yaw"]], axis=-1).astype(float)
+    z = pathspeed.observe(a["path"], a["speed_wps"])
+    if path_state == "plan":
+        z[:, :3] = planref.plan_change(a["path"], pose)[0]
+    return z, cue_vector(a), pose, np.asarray(a["path"], dtype=float)
 
 
 def run_imm(z: np.ndarray, s: np.ndarray, method: str, cfg: IMMConfig, pose: np.ndarray | None = None,
@@ -175,6 +179,7 @@ def is_complete(data: Path, method: str) -> bool:
 
 def load_teacher(data: Path, method: str, stem: str) -> dict[str, np.ndarray]:
     """The teacher arrays of one episode (contract shapes)."""
-    with np.load(Path(data) / "teacher" / method / f"{stem}.npz", allow_pickle=False) as a:
-        return {k: a[k] for k in a.files}
+    from harness.common.npz import read_npz
+    return read_npz(Path(data) / "teacher" / method / f"{stem}.npz", "teacher file",
+                    f"run 'sumo-scimm teacher --data {data} --method {method}' again")
 

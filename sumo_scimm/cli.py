@@ -21,6 +21,7 @@ os.environ.setdefault("NUMPY_MADVISE_HUGEPAGE", "0")
 import argparse  # noqa: E402
 import errno  # noqa: E402
 import logging  # noqa: E402
+import re  # noqa: E402
 import signal  # noqa: E402
 import sys  # noqa: E402
 import threading  # noqa: E402
@@ -85,6 +86,19 @@ def _os_error(exc: OSError) -> str:
     return f"{exc.strerror or exc}{where} ({fix})"
 
 
+MESSAGE_MAX = 600  # [characters] of an error line; a longer one keeps its start and its end (the fix)
+
+
+def one_line(text: str) -> str:
+    """An error message as one line: its line breaks become ' | ' (an agent's or a library's
+    exception text may hold several lines), and one longer than MESSAGE_MAX characters
+    keeps its first 300 and last 250 (where the fix is), the cut said."""
+    text = re.sub(r"\s*[\r\n]+\s*", " | ", text.strip())
+    if len(text) <= MESSAGE_MAX:
+        return text
+    return f"{text[:300]} ... ({len(text) - 550} characters left out) ... {text[-250:]}"
+
+
 def main(argv: list[str] | None = None) -> int:
     """Run the CLI; returns the process exit code. A Ctrl-C or SIGTERM ends the run with
     130 or 143, the records written so far complete and resumable."""
@@ -99,10 +113,10 @@ def main(argv: list[str] | None = None) -> int:
         args = build_parser().parse_args(argv)
         return args.func(args)
     except (BadInput, UnknownTown, UnknownSet, RouteFileError) as exc:
-        print(f"sumo-scimm: error: {clip_numbers(str(exc))}", file=sys.stderr)
+        print(f"sumo-scimm: error: {one_line(clip_numbers(str(exc)))}", file=sys.stderr)
         return EXIT_BAD_INPUT
     except OSError as exc:  # a path the command cannot create, read or write (a route's own failures are records)
-        print(f"sumo-scimm: error: {_os_error(exc)}", file=sys.stderr)
+        print(f"sumo-scimm: error: {one_line(_os_error(exc))}", file=sys.stderr)
         return EXIT_BAD_INPUT
     except KeyboardInterrupt as exc:
         # eval and collect keep what they wrote

@@ -8,7 +8,7 @@ from pathlib import Path
 
 from harness.common.errors import BadInput
 from harness.common.lock import FolderLock
-from sumo_scimm.options import add_backend_options, add_vehicle_option, backend_of
+from sumo_scimm.options import add_backend_options, add_vehicle_option, backend_of, out_arg
 
 # = model.train.EPOCHS, EPOCH_STEPS, PATIENCE, BATCH, EMA, LR, THREADS, ("none", *model.data.TEACHERS),
 # model.loss.LossWeights()'s
@@ -73,9 +73,19 @@ def _curves(args: argparse.Namespace) -> int:
     return 0
 
 
+def _checked_route_file(option: str, name: str) -> None:
+    """BadInput unless route set or file ``name`` (of ``option``) passes 'sumo-scimm routes
+    check', as eval checks its --routes before a route runs (harness.runs.evaluate)."""
+    from harness.runs.evaluate import _route_set
+    from scenarios import UnknownSet
+    try:
+        _route_set(name)
+    except (UnknownSet, BadInput) as exc:
+        raise BadInput(f"{option}: {exc}") from None
+
+
 def _reproduce(args: argparse.Namespace) -> int:
     from model.reproduce import parse_seeds, reproduce, select_arms
-    from scenarios import UnknownSet, resolve_set
     seeds = parse_seeds(args.seeds)
     for name in ("workers", "repetitions"):
         if getattr(args, name) < 1:
@@ -87,11 +97,10 @@ def _reproduce(args: argparse.Namespace) -> int:
     arms = select_arms(args.arms)
     sets = (args.train_routes, args.val_routes, args.eval_routes)
     second = None if args.second_routes == "none" else args.second_routes
-    for name in (*sets, *([second] if second else [])):
-        try:
-            resolve_set(name)
-        except UnknownSet as exc:
-            raise BadInput(str(exc)) from None
+    options = ("--train-routes", "--val-routes", "--eval-routes", "--second-routes")
+    for option, name in zip(options, (*sets, second)):  # every route file, before the first stage
+        if name is not None:
+            _checked_route_file(option, name)
     with FolderLock(Path(args.out)):
         print(reproduce(Path(args.out), seeds, args.repetitions, args.epochs, backend, sets, arms, second,
                         args.vehicle))
@@ -135,7 +144,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     tr.add_argument("--threads", type=int, default=THREADS,
                     help=f"torch threads; a training is deterministic at a given thread count ('reproduce' "
                     f"trains with 1, two students at a time) (default {THREADS})")
-    tr.add_argument("--out", help="output folder: student.pt, manifest.json and history.json; required")
+    tr.add_argument("--out", type=out_arg, help="output folder: student.pt, manifest.json and history.json; required")
     tr.add_argument("--cache", help="BEV cache folder (default DATA/cache), shared by trainings on the same data")
     tr.set_defaults(func=_train)
     trsub = tr.add_subparsers(dest="train_action", parser_class=type(tr), metavar="{curves}")
@@ -143,7 +152,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                          "speed losses, training loss, the chosen epoch ringed)")
     c.add_argument("--runs", nargs="+", required=True, metavar="ARM=DIR",
                    help="arm name and training folder (its history.json), e.g. baseline=runs/b scimm=runs/s")
-    c.add_argument("--out", required=True, help="figure file (.png)")
+    c.add_argument("--out", type=out_arg, required=True, help="figure file (.png)")
     c.set_defaults(func=_curves)
 
     r = sub.add_parser("reproduce", help="the paper's whole experiment: collect, teachers, train, eval, tables",
@@ -152,13 +161,13 @@ def register(sub: argparse._SubParsersAction) -> None:
                        f"eval on {EVAL_SET} and {SECOND_SET} -> Tables 2-4 against the baseline and the control, "
                        "Fig. 4-5. Resumes: finished stages are skipped.")
     r.add_argument("--seeds", default="1", help="training/evaluation seeds per arm: K for seeds 0..K-1, or A-B "
-                   "for seeds A to B, added to the seeds already in --out; the tables pool every seed present "
-                   "(default 1)")
+                   "for seeds A to B, added to the seeds already in --out (at most 1000 at once); the tables pool "
+                   "every seed present (default 1)")
     r.add_argument("--workers", type=int, default=os.cpu_count() or 1, help="simulation processes (default: cores)")
     r.add_argument("--repetitions", type=int, default=1,
                    help="expert drives of each training route (default 1; 2 gives > 100k frames)")
     r.add_argument("--epochs", type=int, help="training epochs (default: sumo-scimm train's)")
-    r.add_argument("--out", default="runs/reproduce", help="output folder (default runs/reproduce)")
+    r.add_argument("--out", type=out_arg, default="runs/reproduce", help="output folder (default runs/reproduce)")
     add_backend_options(r)  # for the collect and eval stages; training runs here
     add_vehicle_option(r)
     # other route sets (e.g. town12_smoke everywhere): to try the pipeline in minutes, not for results

@@ -30,10 +30,10 @@ def seed_arg(text: str) -> int:
 
 
 def out_arg(text: str) -> str:
-    """argparse type of a command's output folder: not empty (an empty --out would name the
-    current folder, or fall back to a default one)."""
+    """argparse type of a command's output folder or file: not empty (an empty --out would
+    name the current folder, or fall back to a default one, such as a shipped file)."""
     if not text.strip():
-        raise argparse.ArgumentTypeError(f"{text!r} is empty: give a folder")
+        raise argparse.ArgumentTypeError(f"{text!r} is empty: give a path")
     return text
 
 

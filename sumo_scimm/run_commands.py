@@ -209,7 +209,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="eval run folders: draw their predicted paths on --route (Fig. 5, --out F.png) "
                         "instead of driving it")
     add_agent_options(r)
-    r.add_argument("--out", required=True, help="video file (.mp4; the path PNG goes beside it), or with "
+    r.add_argument("--out", type=out_arg, required=True, help="video file (.mp4; the path PNG goes beside it), or with "
                    "--runs the figure (.png)")
     r.add_argument("--seed", type=seed_arg, default=0, help="run seed, as in eval (default 0)")
     add_vehicle_option(r)
@@ -218,7 +218,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     sc = sub.add_parser("score", help="recompute the scores of a Leaderboard results JSON (ours or CARLA's)")
     sc.add_argument("results", help="results JSON (the leaderboard's --checkpoint file), plain or .gz")
     sc.add_argument("--rules", default="lb2.0", choices=RULES, help="default lb2.0")
-    sc.add_argument("--out", help="write the rescored JSON here (default: print it)")
+    sc.add_argument("--out", type=out_arg, help="write the rescored JSON here (default: print it)")
     sc.set_defaults(func=_score)
 
     rp = sub.add_parser("report", help="the paper's Tables 3 and 4 for several arms, with seed-paired intervals")

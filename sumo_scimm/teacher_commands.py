@@ -18,6 +18,7 @@ from harness.common.errors import BadInput
 from scimm import teacher as tch
 from scimm.modes import IMMConfig
 from scimm.stage import dataset_episodes, make_teachers, write_tables
+from sumo_scimm.options import out_arg
 
 METHOD_CHOICES = (*tch.METHODS, "all")
 
@@ -83,6 +84,6 @@ def register(sub: argparse._SubParsersAction) -> None:
     p = tsub.add_parser("plot", help="paper Fig. 4: BEV of a few frames and the mode posterior over time")
     p.add_argument("--data", required=True, help="dataset folder")
     p.add_argument("--episode", required=True, help="episode file stem, e.g. 12_rep0")
-    p.add_argument("--out", required=True, help="figure file (.png)")
+    p.add_argument("--out", type=out_arg, required=True, help="figure file (.png)")
     p.add_argument("--method", default="scimm", choices=tch.METHODS, help="posterior to plot (default scimm)")
     p.set_defaults(func=_plot)

@@ -9,7 +9,7 @@ from pathlib import Path
 from harness.common.errors import BadInput
 from harness.common.lock import FolderLock
 from harness.common.progress import progress
-from sumo_scimm.options import EXIT_BAD_INPUT, seed_arg
+from sumo_scimm.options import EXIT_BAD_INPUT, out_arg, seed_arg
 
 
 # --- nets -------------------------------------------------------------------------------
@@ -82,7 +82,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     b = nsub.add_parser("build", help="rebuild town nets with netconvert (seeded, reproducible)")
     b.add_argument("--town", help="one town (default: all)")
     b.add_argument("--seed", type=seed_arg, help="builder seed (default: the town's own)")
-    b.add_argument("--out", help="output folder (default: the package's nets folder)")
+    b.add_argument("--out", type=out_arg, help="output folder (default: the package's nets folder)")
     b.set_defaults(func=_nets_build)
     s = nsub.add_parser("show", help="size, junctions, road length, curved share, crossings")
     s.add_argument("--town", help="one town (default: all)")
@@ -94,7 +94,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     m = rsub.add_parser("make", help="build a route set from its seeded builder")
     m.add_argument("--set", required=True, help="set name (town12_short, town12_smoke, train, val, town12_second)")
     m.add_argument("--seed", type=seed_arg, help="builder seed (default: the set's own)")
-    m.add_argument("--out", help="output file (default: scenarios/<set>.xml)")
+    m.add_argument("--out", type=out_arg, help="output file (default: scenarios/<set>.xml)")
     m.set_defaults(func=_routes_make)
     c = rsub.add_parser("check", help="validate a route file: one line per bad route, exit 2")
     c.add_argument("file")

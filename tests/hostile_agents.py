@@ -151,3 +151,67 @@ class ReplacesRunFolder(RouteFollower):
             os.makedirs(folder)
             with open(os.path.join(folder, "other_run.txt"), "w") as f:
                 f.write("another run's folder\n")
+
+
+class UndecodableMessage(RouteFollower):
+    """Raises, in a worker, with a file name that holds a byte that is not UTF-8 (Python
+    keeps it as the lone surrogate U+DCFF)."""
+
+    def run_step(self, input_data, timestamp):
+        if in_worker():
+            name = os.fsdecode(b"/tmp/weights-\xff.bin")
+            raise FileNotFoundError(f"no weights at {name}")
+        return super().run_step(input_data, timestamp)
+
+
+class ChangesFolder(RouteFollower):
+    """Changes the worker's working folder in setup, as an agent that loads its files
+    relative to its own folder does."""
+
+    def setup(self, config):
+        super().setup(config)
+        if in_worker():
+            os.chdir(os.environ["AGENT_FOLDER"])
+
+
+class EditsThePlan(RouteFollower):
+    """Tries to move the route's end to its start and mark it driven, then stands."""
+
+    def setup(self, config):
+        super().setup(config)
+        if in_worker():
+            self.plan.s[:] = self.plan.s[-1]
+
+    def run_step(self, input_data, timestamp):
+        return Control(0.0, 0.0, 1.0)
+
+
+def in_spawned_worker() -> bool:
+    """In a worker process that a run spawned (for agents run by a ``sumo-scimm`` started
+    as a subprocess, whose pid the test cannot name in CHECK_PID)."""
+    import multiprocessing
+    return multiprocessing.parent_process() is not None
+
+
+class AtexitHang(RouteFollower):
+    """Registers, in a worker, an ``atexit`` function that never returns."""
+
+    def setup(self, config):
+        super().setup(config)
+        if in_spawned_worker():
+            import atexit
+            atexit.register(_hang)
+
+
+class IgnoresTerm(RouteFollower):
+    """Ignores SIGTERM in a worker (as a library that installs its own handler may), and
+    drives slowly enough to be stopped mid-run."""
+
+    def setup(self, config):
+        super().setup(config)
+        if in_spawned_worker():
+            signal.signal(signal.SIGTERM, signal.SIG_IGN)
+
+    def run_step(self, input_data, timestamp):
+        time.sleep(0.01)
+        return super().run_step(input_data, timestamp)

@@ -34,6 +34,20 @@ def one_smoke_route(folder: Path, route_id: str = "3", name: str | None = None) 
     return path
 
 
+def finished_run(factory, argv: list[str]) -> Path:
+    """A finished ``eval`` of ``argv`` (e.g. SMOKE_ONE) in a fresh folder of pytest's
+    ``tmp_path_factory``, for a module's tests to copy and damage."""
+    out = factory.mktemp("run") / "run"
+    code, printed = _cli([*argv, "--out", str(out)])
+    assert code == 0, printed
+    return out
+
+
+def tree(folder: Path) -> dict[str, bytes]:
+    """{relative path: bytes} of every file under ``folder``: to check a refusal left it as it was."""
+    return {str(p.relative_to(folder)): p.read_bytes() for p in sorted(folder.rglob("*")) if p.is_file()}
+
+
 def _cli(argv: list[str]) -> tuple[int, str]:
     buf = io.StringIO()
     with contextlib.redirect_stdout(buf), contextlib.redirect_stderr(buf):

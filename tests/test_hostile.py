@@ -7,6 +7,7 @@ import csv
 import json
 import os
 import shutil
+import signal
 import subprocess
 import sys
 import time
@@ -391,6 +392,21 @@ def test_a_set_seed_that_is_not_an_integer_and_an_empty_out_are_refused(tmp_path
     assert "empty" in one_error_line(capsys)
 
 
+@pytest.mark.parametrize("argv", [
+    ["reproduce"], ["routes", "make", "--set", "town12_smoke", "--seed", "5"], ["nets", "build", "--town", "town01"],
+    ["train", "--data", "d", "--val", "v", "--teacher", "none"], ["train", "curves", "--runs", "a=b"],
+    ["render", "--routes", "town12_smoke", "--route", "0"], ["score", "results.json"],
+    ["teacher", "plot", "--data", "d", "--episode", "0_rep0"]], ids=lambda a: " ".join(a[:2]))
+def test_an_empty_out_is_refused_by_every_command_before_it_writes(tmp_path, capsys, monkeypatch, argv):
+    """An unset shell variable (--out "$DIR") must not name the current folder, or fall back
+    to a shipped file (routes make's route set, nets build's town)."""
+    monkeypatch.chdir(tmp_path)
+    assert main([*argv, "--out", ""]) == 2
+    line = one_error_line(capsys)
+    assert "--out" in line and "is empty: give a path" in line, line
+    assert list(tmp_path.iterdir()) == []
+
+
 # the leaderboard's merge_statistics.py reads every infraction key of every record --------
 def _merge_statistics_global_counts(records: list[dict]) -> dict[str, int]:
     """What the leaderboard's StatisticsManager.compute_global_statistics does with the
@@ -410,3 +426,135 @@ def test_score_refuses_a_record_without_an_infraction_key_that_merge_statistics_
     path.write_text(json.dumps(data))
     assert main(["score", str(path)]) == 2
     assert "'red_light'" in one_error_line(capsys)
+
+
+# 14: an agent's process-wide changes ---------------------------------------------------------
+def _smoke_eval(out: Path, agent: str, *extra: str) -> subprocess.Popen:
+    """``eval`` of town12_smoke with a hostile agent, in its own process group."""
+    return subprocess.Popen([sys.executable, "-m", "sumo_scimm.cli", "eval", "--routes", "town12_smoke",
+                             "--agent", f"tests.hostile_agents:{agent}", "--workers", "1", "--out", str(out), *extra],
+                            start_new_session=True, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            env={**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[1])})
+
+
+def test_an_agent_whose_atexit_function_hangs_cannot_hang_the_end_of_a_run(tmp_path):
+    """The worker's agent registers an atexit function that never returns: the run still
+    ends (the worker is killed EXIT_GRACE = 5 s after it was told to stop), whole, and no
+    process of it is left."""
+    from tests.test_reliability import _live_in_group
+    out = tmp_path / "run"
+    proc = _smoke_eval(out, "AtexitHang", "--routes-subset", "0")
+    _, err = proc.communicate(timeout=120)
+    assert proc.returncode == 0, err
+    assert json.loads((out / "results.json").read_text())["entry_status"] == "Finished"
+    deadline = time.time() + 15
+    while _live_in_group(proc.pid) and time.time() < deadline:
+        time.sleep(0.1)
+    assert not _live_in_group(proc.pid), "the worker outlived the run"
+
+
+def test_sigterm_ends_a_run_whose_agent_ignores_sigterm(tmp_path):
+    """The worker's agent ignores SIGTERM: a SIGTERM to the run ends it all the same (the
+    worker is killed after EXIT_GRACE), exit 143 with its one line, no process left."""
+    from tests.test_reliability import _live_in_group
+    out = tmp_path / "run"
+    proc = _smoke_eval(out, "IgnoresTerm")
+    rec, deadline = out / "records.jsonl", time.time() + 180
+    while time.time() < deadline and not (rec.exists() and rec.read_text().count("\n") >= 1):
+        time.sleep(0.05)
+    proc.send_signal(signal.SIGTERM)
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == 143, err
+    assert "sumo-scimm: terminated (SIGTERM)" in err and "Traceback" not in err, err
+    deadline = time.time() + 15
+    while _live_in_group(proc.pid) and time.time() < deadline:
+        time.sleep(0.1)
+    assert not _live_in_group(proc.pid), "the worker outlived the run"
+
+
+def test_an_agent_message_with_undecodable_bytes_is_recorded_and_the_run_goes_on(tmp_path, monkeypatch):
+    """An agent error naming a file whose name holds the byte 0xff (a lone surrogate in
+    Python): the route is the agent's crash, every file is written (the byte as \\udcff)
+    and the next route runs."""
+    monkeypatch.setenv("CHECK_PID", str(os.getpid()))
+    out = tmp_path / "run"
+    assert main(eval_argv(out, "--agent", "tests.hostile_agents:UndecodableMessage", subset="0,1")) == 0
+    rows = list(csv.DictReader((out / "records.csv").open(encoding="utf-8")))
+    assert [r["status"] for r in rows] == ["Failed - Agent crashed"] * 2
+    assert "/tmp/weights-\\udcff.bin" in rows[0]["message"]
+    assert json.loads((out / "results.json").read_text())["entry_status"] == "Finished"
+
+
+def test_an_agent_that_changes_its_working_folder_does_not_stop_a_run_with_a_relative_out(tmp_path, monkeypatch):
+    monkeypatch.setenv("CHECK_PID", str(os.getpid()))
+    monkeypatch.setenv("AGENT_FOLDER", str(tmp_path / "elsewhere"))
+    (tmp_path / "elsewhere").mkdir()
+    monkeypatch.chdir(tmp_path)
+    assert main(eval_argv(Path("rel"), "--agent", "tests.hostile_agents:ChangesFolder", subset="0,1")) == 0
+    assert sorted(p.name for p in (tmp_path / "rel" / "logs").iterdir()) == ["0_rep0.npz", "1_rep0.npz"]
+    assert not any((tmp_path / "elsewhere").iterdir())
+
+
+def test_an_agent_cannot_move_the_route_it_is_scored_on(tmp_path, monkeypatch):
+    """The agent edits its plan's arc lengths to say the route is driven, then stands: its
+    plan is its own copy, so the route is not completed (it stands: blocked after 180 s)."""
+    monkeypatch.setenv("CHECK_PID", str(os.getpid()))
+    out = tmp_path / "run"
+    assert main(eval_argv(out, "--agent", "tests.hostile_agents:EditsThePlan")) == 0
+    (rec,) = [json.loads(line) for line in (out / "records.jsonl").read_text().splitlines()]
+    assert rec["status"] == "Failed - Agent got blocked" and rec["rc"] == 0.0, rec
+
+
+@pytest.mark.parametrize("encoding", ["bogus-enc", "shift_jis", "utf-32", "rot13", "idna", "punycode"])
+def test_a_route_file_declaring_an_encoding_python_cannot_decode_is_one_line(tmp_path, capsys, encoding):
+    routes = tmp_path / "enc.xml"
+    routes.write_text(SMOKE.read_text().replace('encoding="UTF-8"', f'encoding="{encoding}"', 1))
+    assert f'encoding="{encoding}"' in routes.read_text()
+    assert main(["routes", "check", str(routes)]) == 2
+    err = capsys.readouterr()
+    lines = (err.out + err.err).strip().splitlines()
+    assert len(lines) == 1 and "Traceback" not in lines[0] and "save it as UTF-8" in lines[0], lines
+    assert main(["eval", "--routes", str(routes), *FOLLOW, "--out", str(tmp_path / "r")]) == 2
+    assert "save it as UTF-8" in one_error_line(capsys)
+    assert not (tmp_path / "r").exists()
+
+
+def test_an_error_message_is_one_line_however_many_lines_or_characters_it_holds():
+    """Line breaks become ' | '; past 600 characters the message keeps its first 300 and last
+    250 (where the fix is): 5,007 characters -> 300 + the cut's note + 250."""
+    from sumo_scimm.cli import one_line
+    assert one_line("cannot import x (first\n  second\r\nthird)\n") == "cannot import x (first | second | third)"
+    long = "x" * 5000 + " fix it"
+    out = one_line(long)
+    assert out == "x" * 300 + " ... (4457 characters left out) ... " + "x" * 243 + " fix it"
+    assert one_line("y" * 600) == "y" * 600
+
+
+def test_render_replaces_its_video_whole_and_draws_a_route_that_failed_at_once(tmp_path, monkeypatch):
+    """The video goes in under its name only once whole (an earlier file at that path is
+    kept until then, no partial file is left); an agent that fails on its first tick still
+    gets its path picture (the route alone)."""
+    video = tmp_path / "r.mp4"
+    video.write_bytes(b"an earlier video")
+    assert main(["render", "--routes", "town12_smoke", "--route", "1", "--agent", "tests.agents:FaultyFollower",
+                 "--out", str(video)]) == 0
+    assert video.read_bytes()[4:8] == b"ftyp" and video.stat().st_size > 10_000  # an MP4, replaced
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["r.mp4", "r.png"]
+    monkeypatch.delenv("CHECK_PID", raising=False)  # so the agent raises at its first tick
+    assert main(["render", "--routes", "town12_smoke", "--route", "0", "--agent",
+                 "tests.hostile_agents:UndecodableMessage", "--out", str(tmp_path / "f.mp4")]) == 0
+    assert (tmp_path / "f.png").stat().st_size > 0
+    assert not [p for p in tmp_path.iterdir() if ".part" in p.name]
+
+
+def test_a_gzip_bomb_is_refused_after_reading_at_most_the_limit(tmp_path, capsys, monkeypatch):
+    """A .gz that would decompress past MAX_TEXT (here lowered to 1 MB; 2 MB of spaces in
+    2 kB) is one line, without decompressing the rest."""
+    import gzip
+    from files import compressed
+    monkeypatch.setattr(compressed, "MAX_TEXT", 2**20)
+    bomb = tmp_path / "results.json.gz"
+    bomb.write_bytes(gzip.compress(b" " * 2**21))
+    assert bomb.stat().st_size < 5000
+    assert main(["score", str(bomb)]) == 2
+    assert "decompresses to more than 1 MB" in one_error_line(capsys)

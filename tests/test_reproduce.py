@@ -110,6 +110,10 @@ def test_reproduce_runs_every_stage_and_resumes_without_redoing_them(tmp_path, c
     (["--address", "127.0.0.1:6379"], "--address needs --backend ray"),
     (["--arms", "scimm,imm"], "--arms: unknown arm 'imm'"),
     (["--second-routes", "no_such_set"], "unknown route set 'no_such_set'"),
+    (["--arms", "scimm,baseline,scimm"], "--arms 'scimm,baseline,scimm': arm 'scimm' is named twice"),
+    (["--seeds", "0-99999999999999999999"], "a seed is at most"),  # once: the collect stage started
+    (["--seeds", "99999999999999999999"], "at most 1000 in one reproduce"),
+    (["--seeds", "5-2000"], "asks for 1996 seeds, at most 1000 in one reproduce"),
 ])
 def test_reproduce_refuses_bad_input_before_writing_anything(tmp_path, capsys, extra, message):
     out = tmp_path / "rep"
@@ -118,4 +122,40 @@ def test_reproduce_refuses_bad_input_before_writing_anything(tmp_path, capsys, e
     assert message in err
     assert "Traceback" not in err
     assert len(err.strip().splitlines()) == 1
+    assert not out.exists()
+
+
+def _duplicate_route_id(folder):
+    path = one_smoke_route(folder, "3", "dup")
+    text = path.read_text()
+    head, route = text.split("\n", 2)[:2], text.split("\n", 2)[2].removesuffix("</routes>\n")
+    path.write_text("\n".join(head) + "\n" + route + route + "</routes>\n")
+    return path, "route 3: duplicate route id"
+
+
+def _unknown_encoding(folder):
+    path = one_smoke_route(folder, "3", "badenc")
+    path.write_text(path.read_text().replace('encoding="UTF-8"', 'encoding="bogus-enc"', 1))
+    return path, ""
+
+
+def _not_xml(folder):
+    path = folder / "binary.xml"
+    path.write_bytes(bytes(range(256)))
+    return path, ""
+
+
+@pytest.mark.parametrize("option", ["--train-routes", "--val-routes", "--eval-routes", "--second-routes"])
+@pytest.mark.parametrize("make", [_duplicate_route_id, _unknown_encoding, _not_xml])
+def test_reproduce_checks_every_route_file_before_the_first_stage(tmp_path, capsys, option, make):
+    """As 'routes check' does (and eval before a route runs): before, a bad --val-routes or
+    --eval-routes was found only at its stage, hours after the collect stage started."""
+    path, words = make(tmp_path)
+    out = tmp_path / "rep"
+    assert main(["reproduce", "--out", str(out), option, str(path)]) == 2
+    err = capsys.readouterr().err
+    assert "Traceback" not in err
+    assert len(err.strip().splitlines()) == 1, err
+    assert err.startswith(f"sumo-scimm: error: {option}: {path}"), err
+    assert words in err and f"routes check {path}" in err, err
     assert not out.exists()

@@ -19,6 +19,7 @@ import pandas as pd
 from controller.vehicle import EgoState
 from files.atomic import write_atomic
 from harness.common.errors import BadInput
+from harness.common.npz import check_offsets, check_rows, read_npz
 from harness.sensors.bev import BevRenderer
 from harness.sim.plan import GlobalPlan, build_plan
 from harness.sim.world import Snapshot
@@ -27,6 +28,21 @@ from scenarios.routefile import read_routes
 from sumo_nets import load_net
 
 SITUATIONS = ("junction_turn", "stopping", "bypass", "cruise")
+EPISODE_FIX = "collect the dataset again into a new folder"
+# one row per frame: the shape of a row (None: any size) of what the teacher and the student read
+LABEL_ROWS = {"t": (), "x": (), "y": (), "yaw": (), "v": (), "path": (20, 2), "speed_wps": (10, 2),
+              "target_point": (2,)}
+# and what the renderer reads (Episode.scene)
+SCENE_ROWS = {"lights": (None,), "stops": (None,), "props": (None, 5), "flag_stop": ()}
+ACTOR_ROWS = {"actor_xy": (2,), "actor_yaw": (), "actor_speed": (), "actor_size": (2,), "actor_cls": ()}
+
+
+def read_episode(path: Path, rows: dict[str, tuple] = LABEL_ROWS) -> dict[str, np.ndarray]:
+    """Every array of the episode file ``path``, those of ``rows`` checked to hold one row per
+    frame; BadInput naming the file and the fix if it is damaged (read_npz, check_rows)."""
+    arrays = read_npz(path, "episode file", EPISODE_FIX)
+    check_rows(arrays, rows, path, "episode file", EPISODE_FIX)
+    return arrays
 
 
 @lru_cache(maxsize=64)
@@ -55,11 +71,20 @@ class Episode:
     """One recorded route run (arrays as written by harness.expert.collect)."""
 
     def __init__(self, path: Path):
-        with np.load(path, allow_pickle=False) as z:
-            self.a = {k: z[k] for k in z.files}
+        self.a = read_episode(path)
         self.path = Path(path)
+        if "stops" in self.a:  # else scene() names the old collection
+            n = check_rows(self.a, SCENE_ROWS, path, "episode file", EPISODE_FIX, len(self))
+            check_offsets(self.a, "actor_offset", ACTOR_ROWS, n, path, "episode file", EPISODE_FIX)
+        missing = [k for k in ("town", "route_file", "route_id") if k not in self.a]
+        if missing:
+            raise BadInput(f"episode file {path} has no '{missing[0]}' array: {EPISODE_FIX}")
         self.town = str(self.a["town"])
-        self.plan = _plans(str(self.a["route_file"]))[str(self.a["route_id"])]
+        plans = _plans(str(self.a["route_file"]))
+        if str(self.a["route_id"]) not in plans:
+            raise BadInput(f"episode file {path}: route {self.a['route_id']} is not in its route file "
+                           f"{self.a['route_file']}: {EPISODE_FIX}")
+        self.plan = plans[str(self.a["route_id"])]
 
     def __len__(self) -> int:
         return len(self.a["t"])
@@ -142,17 +167,16 @@ def episode_files(folder: Path) -> list[Path]:
 
 def build_index(folder: Path, write: bool = True) -> pd.DataFrame:
     """One row per frame of every episode in ``folder/episodes`` (``episode_files``); written
-    to index.csv unless ``write`` is False. A damaged episode file raises (OSError,
-    ValueError, KeyError)."""
+    to index.csv unless ``write`` is False. BadInput naming a damaged episode file."""
     rows = []
     for ep in episode_files(folder):
-        with np.load(ep, allow_pickle=False) as z:
-            n = len(z["t"])
-            df = pd.DataFrame({c: z[c] for c in INDEX_COLUMNS})
-            df.insert(0, "frame", np.arange(n))
-            df.insert(0, "town", str(z["town"]))
-            df.insert(0, "route_id", str(z["route_id"]))
-            df.insert(0, "episode", ep.stem)
+        z = read_npz(ep, "episode file", EPISODE_FIX, (*INDEX_COLUMNS, "town", "route_id"))
+        n = check_rows(z, dict.fromkeys(INDEX_COLUMNS, ()), ep, "episode file", EPISODE_FIX)
+        df = pd.DataFrame({c: z[c] for c in INDEX_COLUMNS})
+        df.insert(0, "frame", np.arange(n))
+        df.insert(0, "town", str(z["town"]))
+        df.insert(0, "route_id", str(z["route_id"]))
+        df.insert(0, "episode", ep.stem)
         rows.append(df)
     index = pd.concat(rows, ignore_index=True) if rows else pd.DataFrame(columns=["episode", "route_id", "town",
                                                                                    "frame", *INDEX_COLUMNS])

@@ -38,6 +38,7 @@ waypoints it predicted (used for stability metrics and plots).
 from __future__ import annotations
 
 import contextlib
+import copy
 import importlib
 import os
 import signal
@@ -85,7 +86,8 @@ class AutonomousAgent:
         self.config: str | None = None
 
     def set_global_plan(self, plan) -> None:
-        """The route to drive (harness.sim.plan.GlobalPlan: dense and sparse points, world frame)."""
+        """The route to drive (harness.sim.plan.GlobalPlan: dense and sparse points, world frame):
+        the agent's own copy, so nothing the agent does to it moves the route the harness scores."""
         self.plan = plan
 
     def setup(self, config: str | None) -> None:
@@ -312,7 +314,7 @@ def check_agent_setup(name: str, config: str | None, plan=None,
             specs: list[dict] = []
             if plan is not None:
                 step = "setup()"
-                agent.set_global_plan(plan)
+                agent.set_global_plan(copy.deepcopy(plan))
                 agent.setup(config)
                 step = "sensors()"
                 specs = agent.sensors()

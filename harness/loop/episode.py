@@ -19,6 +19,7 @@ call does not return).
 """
 from __future__ import annotations
 
+import copy
 import time as wallclock
 import traceback
 from dataclasses import dataclass, field
@@ -242,7 +243,7 @@ def _setup_agent(run: _Run, agent_name: str, agent_config: str | None, plan: Glo
         with agent_call(timeout):
             run.agent = agent_for(agent_name)
         with agent_call(timeout):
-            run.agent.set_global_plan(plan)
+            run.agent.set_global_plan(copy.deepcopy(plan))  # the agent's own: it cannot move the scored route
             run.agent.setup(agent_config)
         with agent_call(timeout):
             specs = run.agent.sensors()

@@ -2,6 +2,7 @@
 waypoints drawn on it, and a PNG of the driven path over the map (for people)."""
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import cv2
@@ -9,6 +10,7 @@ import numpy as np
 
 from harness.sensors.bev import BevRenderer, colorize, ego_to_image
 from controller.ego import DEFAULT_VEHICLE
+from files.atomic import write_atomic
 from harness.loop.episode import EpisodeResult, run_episode
 from scenarios.routefile import Route
 
@@ -19,11 +21,14 @@ SCALE = 4  # video pixels per BEV pixel
 def render_route(route: Route, agent: str, agent_config: str | None, seed: int, video: Path,
                  every: int = 1, vehicle: str = DEFAULT_VEHICLE) -> tuple[EpisodeResult, Path]:
     """Drive the route with ego model ``vehicle`` (controller.ego), write the BEV video (every
-    ``every``-th tick) and ``<video>.png``."""
+    ``every``-th tick) and ``<video>.png``. The video is written beside ``video`` and renamed
+    to it once whole: a failed or interrupted render leaves the earlier file (if any) as it
+    was and no partial one."""
     bev = BevRenderer.for_town(route.town)
     video.parent.mkdir(parents=True, exist_ok=True)
     size = 64 * SCALE
-    writer = cv2.VideoWriter(str(video), cv2.VideoWriter_fourcc(*"mp4v"), FPS / every, (size, size))
+    part = video.with_name(f".{video.stem}.part{video.suffix}")  # the suffix names the container to OpenCV
+    writer = cv2.VideoWriter(str(part), cv2.VideoWriter_fourcc(*"mp4v"), FPS / every, (size, size))
     if not writer.isOpened():
         raise RuntimeError(f"OpenCV cannot write {video} (mp4v codec)")
     path_xy = []
@@ -46,11 +51,16 @@ def render_route(route: Route, agent: str, agent_config: str | None, seed: int, 
         writer.write(img)
 
     try:
-        res = run_episode(route, agent, agent_config, seed, on_frame=on_frame, vehicle=vehicle)
+        try:
+            res = run_episode(route, agent, agent_config, seed, on_frame=on_frame, vehicle=vehicle)
+        finally:
+            writer.release()
+        png = video.with_suffix(".png")
+        image = _path_image(bev, state.get("plan", res.plan), np.array(path_xy).reshape(-1, 2))
+        write_atomic(png, cv2.imencode(".png", image)[1].tobytes())
+        os.replace(part, video)
     finally:
-        writer.release()
-    png = video.with_suffix(".png")
-    cv2.imwrite(str(png), _path_image(bev, state.get("plan"), np.array(path_xy).reshape(-1, 2)))
+        part.unlink(missing_ok=True)
     return res, png
 
 
@@ -59,6 +69,8 @@ def _path_image(bev: BevRenderer, plan, driven: np.ndarray) -> np.ndarray:
     pts = plan.xy if plan is not None else driven
     if len(driven):
         pts = np.vstack([pts, driven])
+    if not len(pts):  # no plan and nothing driven (the route failed before its first tick)
+        return np.full((64, 64, 3), 255, dtype=np.uint8)
     ppm = 4.0  # [px / m]
     lo, hi = pts.min(0) - 30.0, pts.max(0) + 30.0
     w, h = (int(v) for v in (hi - lo) * ppm)

@@ -266,8 +266,9 @@ def evaluate(routes: str, agent: str, agent_config: str | None = None, out: Path
     out = out if out is not None else Path("runs") / f"{path.stem}_{agent.replace(':', '.')}"
     place = {r.id: i for i, r in enumerate(all_routes)}
     runs = [(rep, r) for rep in range(repetitions) for r in chosen]
+    # the workers get absolute folders: an agent may change its process's working folder
     jobs = [Job(k, r, rep, agent, agent_config, route_seed(seed, rep * len(all_routes) + place[r.id]),
-                str(out / "logs"), rules, agent_timeout=agent_timeout, vehicle=vehicle)
+                str((out / "logs").absolute()), rules, agent_timeout=agent_timeout, vehicle=vehicle)
             for k, (rep, r) in enumerate(runs)]
     checkpoint = checkpoint if checkpoint is not None else out / "results.json"
     sensors = [s["type"] for s in specs]
@@ -291,8 +292,8 @@ def collect(routes: str, out: Path, *, repetitions: int = 1, seed: int = 0, resu
     chosen = _known_lengths(read_routes(path)[1])
     _check_count(repetitions, len(chosen))
     runs = [(rep, r) for rep in range(repetitions) for r in chosen]
-    jobs = [Job(k, r, rep, "expert", None, route_seed(seed, k), str(out / "logs"),
-                collect_dir=str(out / "episodes"), route_file=str(path), vehicle=vehicle)
+    jobs = [Job(k, r, rep, "expert", None, route_seed(seed, k), str((out / "logs").absolute()),
+                collect_dir=str((out / "episodes").absolute()), route_file=str(path), vehicle=vehicle)
             for k, (rep, r) in enumerate(runs)]
     with FolderLock(out):
         _run(jobs, out, resume, backend, "a collection", sensors=["pose", "speed", "world"])

@@ -189,7 +189,7 @@ def check_same_run(out: Path, identity: dict, done: list[dict], adding: bool) ->
         return
     try:
         old = json.loads(path.read_text())
-    except (json.JSONDecodeError, UnicodeDecodeError, OSError):
+    except (ValueError, RecursionError, OSError):  # ValueError: JSONDecodeError, UnicodeDecodeError
         raise BadInput(f"{path} is not a JSON file: {fix}") from None
     new_runs = identity["route_runs"]
     if isinstance(old, dict) and "software" in old:
@@ -199,11 +199,11 @@ def check_same_run(out: Path, identity: dict, done: list[dict], adding: bool) ->
             raise BadInput(f"{out} was started with other software ({_difference(old['software'], identity['software'])}); "
                            f"its records would mix two versions: resume with the software it was started with, or {afresh}")
         old_runs = old.get("route_runs")
-        _check_vehicle(out, old_runs, new_runs)
+        _check_vehicle(out, path, old_runs, new_runs, afresh)
     else:  # an older layout: the route runs alone, without their configs' digests or ego model
         if mixing:
             raise BadInput(unknown)
-        _check_vehicle(out, old, new_runs)
+        _check_vehicle(out, path, old, new_runs, afresh)
         old_runs = ({k: {f: v for f, v in r.items() if f != "vehicle"} if isinstance(r, dict) else r
                      for k, r in old.items()} if isinstance(old, dict) else old)
         new_runs = {k: {f: v for f, v in r.items() if not f.endswith("_digest") and f != "vehicle"}
@@ -220,9 +220,14 @@ def _difference(was: dict, now: dict) -> str:
     return f"{name} {now.get(name)}, the run has {was.get(name)}"
 
 
-def _check_vehicle(out: Path, old_runs, new_runs: dict) -> None:
+def _check_vehicle(out: Path, path: Path, old_runs, new_runs: dict, afresh: str) -> None:
     """BadInput if the run in ``out`` was driven with another ego model (its route runs name
-    it; a run.jsonc made before they did fails the comparison of the route runs instead)."""
+    it; a run.jsonc made before they did fails the comparison of the route runs instead), or
+    if its run file ``path`` names one that is not a text (the file is damaged)."""
+    for key, r in (old_runs.items() if isinstance(old_runs, dict) else ()):
+        if isinstance(r, dict) and "vehicle" in r and not isinstance(r["vehicle"], str):
+            raise BadInput(f"{path} is damaged (route_runs.{str(key)[:40]}.vehicle is {str(r['vehicle'])[:40]}, not "
+                           f"the name of an ego model): {afresh}")
     was = sorted({r["vehicle"] for r in old_runs.values() if isinstance(r, dict) and "vehicle" in r}
                  if isinstance(old_runs, dict) else ())
     now = sorted({r["vehicle"] for r in new_runs.values()})

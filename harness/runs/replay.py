@@ -43,7 +43,6 @@ import hashlib
 import json
 import os
 import re
-import zipfile
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -87,9 +86,36 @@ def route_digest(route) -> str:
     return hashlib.sha256(repr(route).encode()).hexdigest()[:16]
 
 
+LOG_FIX = "evaluate the reference again"
+# what replay_route reads of a reference log: one row per tick, a row's shape (None: any size)
+TICK_ROWS = {"scene_t": (), "scene_ego": (4,), "scene_progress": (), "scene_lights": (None,),
+             "scene_stops": (None,)}
+ACTOR_ROWS = {"scene_xy": (2,), "scene_yaw": (), "scene_size": (2,), "scene_cls": ()}
+
+
+def check_log(log: Path) -> None:
+    """BadInput naming the reference log and the fix unless it can be replayed: readable
+    (harness.expert.dataset.read_npz), with the scene state of this sumo-scimm, every
+    ``scene_*`` array holding one row per tick and the actors counted up by scene_offset.
+    Reads the arrays' headers and scene_offset only."""
+    from harness.common.npz import check_offsets, check_rows, npz_headers, read_npz
+    heads = npz_headers(log, "log", LOG_FIX)
+    if "scene_t" in heads and "scene_stops" not in heads:
+        raise BadInput(f"{log} keeps no stop-sign state (a run from before the BEV drew stop signs until "
+                       "obeyed): evaluate the reference again with this sumo-scimm")
+    if not has_scene(heads):
+        raise BadInput(f"{log} keeps no scene state (a run from before scenes were logged): evaluate "
+                       "the reference again with this sumo-scimm")
+    n = check_rows(heads, TICK_ROWS, log, "log", LOG_FIX)
+    check_rows(heads, {"steer": ()}, log, "log", LOG_FIX)
+    check_rows(heads, {"scene_props": (5,)}, log, "log", LOG_FIX)
+    check_offsets({**heads, **read_npz(log, "log", LOG_FIX, ("scene_offset",))}, "scene_offset", ACTOR_ROWS, n,
+                  log, "log", LOG_FIX)
+
+
 def _load_log(path: str) -> dict[str, np.ndarray]:
-    with np.load(path, allow_pickle=False) as z:
-        return {k: z[k] for k in z.files}
+    from harness.common.npz import read_npz
+    return read_npz(Path(path), "log", LOG_FIX)
 
 
 def replay_route(job: ReplayJob) -> list[dict]:
@@ -244,17 +270,7 @@ def plan_replay(run: Path, agents: list[str], out: Path | None, routes: str | No
         log = run / "logs" / f"{key}.npz"
         if not log.is_file():
             raise BadInput(f"{run}: no log of route run {key} ({log}): finish the run with 'sumo-scimm eval --resume'")
-        try:
-            with np.load(log, allow_pickle=False) as z:
-                scene, old = has_scene(z.files), "scene_t" in z.files and "scene_stops" not in z.files
-        except (OSError, ValueError, zipfile.BadZipFile) as exc:
-            raise BadInput(f"{log} is damaged ({type(exc).__name__}: {exc}): evaluate the reference again") from None
-        if old:
-            raise BadInput(f"{log} keeps no stop-sign state (a run from before the BEV drew stop signs until "
-                           "obeyed): evaluate the reference again with this sumo-scimm")
-        if not scene:
-            raise BadInput(f"{log} keeps no scene state (a run from before scenes were logged): evaluate "
-                           "the reference again with this sumo-scimm")
+        check_log(log)
         jobs.append(ReplayJob(key, route, str(log), tuple(agents), tuple(names), tuple(configs),
                               str(out / "outputs") if out is not None else "", timeout))
     if not jobs:
@@ -320,7 +336,7 @@ def _replay_held(run: Path, agents: list[str], out: Path, routes: str | None, su
         r["agent"] = names[r["agent"]]
 
     def write(tmp: Path) -> None:
-        with open(tmp, "w", newline="") as f:
+        with open(tmp, "w", newline="", encoding="utf-8", errors="backslashreplace") as f:
             w = csv.DictWriter(f, fieldnames=COLUMNS)
             w.writeheader()
             w.writerows(rows)
@@ -350,7 +366,7 @@ def replay_table(rows: list[dict], agents: list[str], out: Path, n_boot: int = 2
     table = csv_rows(res, arms, figures)
 
     def write(tmp: Path) -> None:
-        with open(tmp, "w", newline="") as f:
+        with open(tmp, "w", newline="", encoding="utf-8", errors="backslashreplace") as f:
             w = csv.DictWriter(f, fieldnames=list(table[0]))
             w.writeheader()
             w.writerows(table)
@@ -374,9 +390,9 @@ def replay_figure(run: Path, workers: int, agents: tuple[str, ...] = REPLAY_AGEN
         t0 = time.perf_counter()
         replay(run, list(agents), Path(tmp), workers=workers, progress=False)
         wall = time.perf_counter() - t0
+    from harness.common.npz import read_npz
     ticks = 0
     for j in jobs:
-        with np.load(j.log, allow_pickle=False) as z:
-            ticks += len(z["scene_t"])
+        ticks += len(read_npz(Path(j.log), "log", LOG_FIX, ("scene_t",))["scene_t"])
     return {"replay_wall_s": wall, "replay_routes": len(jobs), "replay_agents": len(agents), "replay_ticks": ticks,
             "replay_workers": workers, "replay_target_s": REPLAY_TARGET_S}

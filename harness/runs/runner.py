@@ -46,7 +46,9 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import math
 import os
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -95,17 +97,28 @@ def _append(f, line: str, path: Path, sync: bool = False) -> None:
         raise OSError(exc.errno, exc.strerror or os.strerror(exc.errno), str(path)) from exc
 
 
+_DAMAGED = "the file is damaged; delete that line"
+_AFRESH = "or start the run afresh in another --out"
+
+
 def read_records(path: Path, check: bool = False) -> list[dict]:
     """Complete records of a records.jsonl (a torn last line, one without its newline, is
     ignored). ``check``: every other line must be a route record as ``eval`` writes it
     (harness.scoring.validate.record_line_problem: its fields, each of its type and in
-    its range, no key twice), else BadInput naming the line; without it such lines are
+    its range, no key twice, its Leaderboard record as the scorer reads it) and the only
+    one of its route run, else BadInput naming the line; without it such lines are
     skipped."""
+    return [rec for _, rec in _numbered_records(path, check)]
+
+
+def _numbered_records(path: Path, check: bool = False) -> list[tuple[int, dict]]:
+    """read_records with each record's line number (1-based)."""
     from harness.scoring.validate import DuplicateKey, no_duplicates, record_line_problem
-    out = []
+    out: list[tuple[int, dict]] = []
     if not path.exists():
         return out
     lines = path.read_text(errors="replace").split("\n")
+    seen: dict[str, int] = {}  # key -> its line
     for i, line in enumerate(lines):
         if not line.strip():
             continue
@@ -116,18 +129,44 @@ def read_records(path: Path, check: bool = False) -> list[dict]:
             if i == len(lines) - 1:  # torn: cut short while it was written
                 continue
             bad = f"is not a JSON record ({exc})"
+        if check and not bad and rec["key"] in seen:
+            raise BadInput(f"{path} line {i + 1} repeats the record of route run {rec['key']} of line "
+                           f"{seen[rec['key']]}: {_DAMAGED} (line {seen[rec['key']]} keeps the route run), {_AFRESH}")
         if bad and check:
-            raise BadInput(f"{path} line {i + 1} {bad}: the file is damaged; delete that line (its route runs "
-                           "again on --resume), or start the run afresh in another --out")
+            raise BadInput(f"{path} line {i + 1} {bad}: {_DAMAGED} (its route runs again on --resume), {_AFRESH}")
         if not bad and isinstance(rec, dict) and "key" in rec:
-            out.append(rec)
+            if check:
+                seen[rec["key"]] = i + 1
+            out.append((i + 1, rec))
     return out
 
 
-def _keep_complete_lines(path: Path, resume: bool, check: bool = False) -> list[dict]:
-    """Start a JSON-lines file afresh, or (resume) keep its complete lines; replaced
-    atomically, so nothing is lost meanwhile, and appends start on a fresh line."""
+def check_route_runs(path: Path, numbered: list[tuple[int, dict]], jobs: list[Job]) -> None:
+    """BadInput naming the first line of records.jsonl (``path``; ``numbered``: its records
+    with their line numbers) that is not a route run of ``jobs`` (the run's job list, as
+    run.jsonc has it): another key, another seed or another place in the run (its
+    Leaderboard record's index)."""
+    by_key = {j.key: j for j in jobs}
+    for n, rec in numbered:
+        job = by_key.get(rec["key"])
+        if job is None:
+            raise BadInput(f"{path} line {n} is a record of route run {str(rec['key'])[:40]}, which is not in this "
+                           f"run (its {RUN_FILE}): {_DAMAGED}, {_AFRESH}")
+        lb_index = rec["lb"]["index"] if isinstance(rec.get("lb"), dict) else None
+        what = (f"has seed {rec.get('seed')}, the run's {job.key} has seed {job.seed}" if rec.get("seed") != job.seed
+                else f"has Leaderboard index {lb_index}, the run's {job.key} has index {job.index}"
+                if lb_index != job.index else None)
+        if what:
+            raise BadInput(f"{path} line {n} {what}: {_DAMAGED} (its route runs again on --resume), {_AFRESH}")
+
+
+def _keep_complete_lines(path: Path, resume: bool, check: bool = False, keys: set | None = None) -> list[dict]:
+    """Start a JSON-lines file afresh, or (resume) keep its complete lines (``keys``: only
+    those of these route runs); replaced atomically, so nothing is lost meanwhile, and
+    appends start on a fresh line."""
     kept = read_records(path, check) if resume else []
+    if keys is not None:
+        kept = [r for r in kept if isinstance(r["key"], str) and r["key"] in keys]
     write_atomic(path, "".join(record_line(r) for r in kept))
     return kept
 
@@ -174,10 +213,12 @@ def run_eval(jobs: list[Job], out: Path, workers: int | None, resume: bool, show
     (local) or every CPU of the Ray cluster."""
     from harness.scoring.outputs import write_outputs
     identity = run_identity(jobs)
-    kept = read_records(out / "records.jsonl", check=True) if resume else []
+    numbered = _numbered_records(out / "records.jsonl", check=True) if resume else []
+    kept = [rec for _, rec in numbered]
     adding = not resume or bool({j.key for j in jobs} - {r["key"] for r in kept})
     if resume:  # before Ray starts: a refused resume starts nothing
         check_same_run(out, identity, kept, adding)
+        check_route_runs(out / "records.jsonl", numbered, jobs)
     check_results_file(checkpoint or out / "results.json", jobs, resume)
     pool = None
     if backend == "ray":  # connect first: a cluster that cannot be reached leaves no file behind
@@ -199,7 +240,8 @@ def run_eval(jobs: list[Job], out: Path, workers: int | None, resume: bool, show
         if old.is_file():
             old.unlink()
         done = _keep_complete_lines(rec_path, resume, check=True)
-        _keep_complete_lines(workers_path, resume)
+        # the memory samples of the routes kept (a route run again gets a new one)
+        _keep_complete_lines(workers_path, resume, keys={r["key"] for r in done})
         here = folder_identity(out)  # the run's folder, checked before each write
         jobs = [dataclasses.replace(j, folder=here) for j in jobs]
         have = {r["key"] for r in done}
@@ -234,16 +276,50 @@ def run_eval(jobs: list[Job], out: Path, workers: int | None, resume: bool, show
     return records
 
 
+def _worker_samples(path: Path) -> tuple[list[dict], int]:
+    """The memory samples of a workers.jsonl, and how many of its lines are not one (not
+    JSON, or without a whole ``pid`` and ``routes``, a finite ``rss_mb`` >= 0, a text or
+    no ``host``); a torn last line is not counted."""
+    rows, skipped = [], 0
+    try:
+        lines = path.read_text(errors="replace").split("\n")
+    except OSError:
+        return rows, 0
+    for i, line in enumerate(lines):
+        if not line.strip():
+            continue
+        try:
+            r = json.loads(line)
+        except (ValueError, RecursionError):
+            skipped += i != len(lines) - 1  # the last one: torn while it was written
+            continue
+        def whole(v) -> bool:
+            return isinstance(v, int) and not isinstance(v, bool) and v >= 0
+        mb = r.get("rss_mb") if isinstance(r, dict) else None
+        if (isinstance(r, dict) and whole(r.get("pid")) and whole(r.get("routes"))
+                and isinstance(mb, (int, float)) and not isinstance(mb, bool) and math.isfinite(mb) and mb >= 0
+                and isinstance(r.get("host"), (str, type(None)))):
+            rows.append(r)
+        else:
+            skipped += 1
+    return rows, skipped
+
+
 def rss_summary(out: Path) -> dict | None:
     """Worker memory over a run, from its workers.jsonl: for each worker process, the
     resident memory after its first and after its last route [MB]. ``growth_mb`` is the
     largest last - first over the workers, ``slope_mb_per_100`` the largest least-squares
-    trend (MB per 100 routes) of a worker that ran >= 3 routes; None without samples."""
+    trend (MB per 100 routes) of a worker that ran >= 3 routes; None without samples.
+    The file is a side file: a damaged line is left out (``skipped_lines``, and a note on
+    stderr), never an error."""
     path = out / "workers.jsonl"
-    rows = read_records(path) if path.exists() else []
+    rows, skipped = _worker_samples(path) if path.exists() else ([], 0)
+    if skipped:
+        print(f"note: {path}: {skipped} damaged line{'s' if skipped > 1 else ''} left out of the worker memory "
+              "figures", file=sys.stderr)
     by_worker: dict[tuple, list[tuple[int, float]]] = {}
     for r in rows:
-        by_worker.setdefault((r.get("host"), r["pid"]), []).append((r["routes"], r["rss_mb"]))
+        by_worker.setdefault((r.get("host"), r["pid"]), []).append((r["routes"], float(r["rss_mb"])))
     if not by_worker:
         return None
     growth, slope = [], []
@@ -253,9 +329,12 @@ def rss_summary(out: Path) -> dict | None:
         if len(samples) >= 3:
             n, mb = np.array(samples, dtype=float).T
             slope.append(float(np.polyfit(n, mb, 1)[0]) * 100)
-    return {"routes": len(rows), "workers": len(by_worker),
-            "max_routes_per_worker": max(len(s) for s in by_worker.values()),
-            "first_mb": max(s[0][1] for s in by_worker.values()),
-            "peak_mb": max(mb for s in by_worker.values() for _, mb in s),
-            "growth_mb": round(max(growth), 1),
-            "slope_mb_per_100": round(max(slope), 2) if slope else float("nan")}
+    summary = {"routes": len(rows), "workers": len(by_worker),
+               "max_routes_per_worker": max(len(s) for s in by_worker.values()),
+               "first_mb": max(s[0][1] for s in by_worker.values()),
+               "peak_mb": max(mb for s in by_worker.values() for _, mb in s),
+               "growth_mb": round(max(growth), 1),
+               "slope_mb_per_100": round(max(slope), 2) if slope else float("nan")}
+    if skipped:
+        summary["skipped_lines"] = skipped
+    return summary

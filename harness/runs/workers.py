@@ -7,7 +7,9 @@ agent call in a worker publishes its deadline and its caller's number
 worker whose agent call runs KILL_AFTER s past its deadline, whatever the agent did with
 the in-process alarm. A worker that is killed so, or dies (kill -9, a segfault), is
 reported through ``lost``, which may hand back a job to run in its place; a new worker
-takes over and the others go on.
+takes over and the others go on. A worker still running EXIT_GRACE s after it was told to
+stop (no jobs left: an agent's ``atexit`` function that hangs; or an interruption: an
+agent that ignores SIGTERM) is killed.
 """
 from __future__ import annotations
 
@@ -22,6 +24,8 @@ from typing import Callable
 
 from harness.loop.agent import watch_agent_calls
 from harness.runs.jobs import KILL_AFTER, WATCH_EVERY
+
+EXIT_GRACE = 5.0  # [s] a worker told to stop has this long before it is killed
 
 HUNG = "hung"  # ``lost``'s reason for a worker killed past its agent call's deadline
 
@@ -56,7 +60,10 @@ def _exit_now() -> None:
     Runtime and libsumo loaded it takes about 0.9 s. Every file a job writes is written whole
     before its result is sent (files.atomic) and SUMO is closed after each route; the
     functions registered with ``atexit`` (an agent's, say) still run, and the output is
-    flushed."""
+    flushed. Those functions get EXIT_GRACE s: then SIGALRM's default action ends the
+    process, with or without a parent to kill it."""
+    signal.signal(signal.SIGALRM, signal.SIG_DFL)
+    signal.alarm(int(EXIT_GRACE))
     atexit._run_exitfuncs()  # what the interpreter's exit would call first (a few ms here)
     sys.stdout.flush()
     sys.stderr.flush()
@@ -125,7 +132,7 @@ def run_workers(jobs: list, workers: int, task: Callable, emit: Callable, lost: 
                         slots[conn] = (p, nxt)
                     else:
                         conn.send(None)
-                        p.join()
+                        _stop(p, terminate=False)
                         del slots[conn], shared[conn]
             if not slots:
                 break
@@ -151,5 +158,15 @@ def run_workers(jobs: list, workers: int, task: Callable, emit: Callable, lost: 
             end_hung_workers()
     finally:
         for p, _ in slots.values():  # only after an interruption or an error
-            p.terminate()
-            p.join()
+            _stop(p, terminate=True)
+
+
+def _stop(p, terminate: bool) -> None:
+    """Wait for worker ``p`` to end (SIGTERM first if ``terminate``), at most EXIT_GRACE s,
+    then kill it."""
+    if terminate:
+        p.terminate()
+    p.join(EXIT_GRACE)
+    if p.is_alive():
+        p.kill()
+        p.join()

@@ -48,20 +48,38 @@ def _rules(folder: Path) -> dict[str, str]:
 def route_figures(folder: Path) -> list[dict]:
     """Per route run of a finished run folder: {"key", "hazard", "DS", "success", "efficiency",
     "smoothness"} (efficiency in %, None where the route has no checkpoint; smoothness in
-    [0, 1], None below 3 ticks)."""
+    [0, 1], None below 3 ticks). BadInput for a file that cannot be read, a line that is not
+    a route record (but a torn last line, cut short while it was written), a hazard type that
+    is not text, or a file without a route record: the tables would miss its routes."""
     path = folder / "records.jsonl"
     try:
-        lines = read_text(path).splitlines()
-    except (OSError, UnicodeDecodeError) as exc:
+        text = read_text(path)
+    except OSError as exc:
         raise BadInput(f"{path}: cannot be read ({type(exc).__name__}: {exc})") from None
+    except UnicodeDecodeError as exc:
+        raise BadInput(f"{path}: cannot be read ({type(exc).__name__}: {exc}): the file is damaged; move "
+                       "records.jsonl away to report Tables 3 and 4 alone, or evaluate the run again") from None
+    lines = text.split("\n")
     out, rules = [], None
-    for line in lines:
+    fix = ("delete that line and run 'sumo-scimm eval ... --resume' (its route runs again), or move "
+           "records.jsonl away to report Tables 3 and 4 alone")
+    for i, line in enumerate(lines):
+        if not line.strip():
+            continue
         try:
             r = json.loads(line)
-        except json.JSONDecodeError:
-            continue  # a torn last line, as the runner reads it
-        if not isinstance(r, dict) or "lb" not in r:
-            continue
+        except (json.JSONDecodeError, RecursionError) as exc:
+            if i == len(lines) - 1:  # no newline after it
+                continue  # a torn last line, cut short while it was written (as the runner reads it)
+            raise BadInput(f"{path} line {i + 1} is not a JSON record ({type(exc).__name__}): the file is "
+                           f"damaged; {fix}") from None
+        missing = next((k for k in ("key", "lb") if k not in r), None) if isinstance(r, dict) else None
+        if not isinstance(r, dict) or missing:
+            what = f"has no {missing!r}" if isinstance(r, dict) else "is not a record"
+            raise BadInput(f"{path} line {i + 1} {what}: the file is damaged; {fix}")
+        if "hazard" in r and r["hazard"] is not None and not isinstance(r["hazard"], str):
+            raise BadInput(f"{path} line {i + 1}: hazard is {str(r['hazard'])[:40]!r}, not a hazard type: the file "
+                           f"is damaged; {fix}")
         try:
             if "efficiency" in r:
                 eff = r["efficiency"]
@@ -75,6 +93,9 @@ def route_figures(folder: Path) -> list[dict]:
                         "success": success(r["lb"]), "efficiency": eff, "smoothness": smooth})
         except (KeyError, TypeError, ValueError, AttributeError) as exc:
             raise BadInput(f"{path}: not a records.jsonl of 'sumo-scimm eval' ({type(exc).__name__}: {exc})") from None
+    if not out:
+        raise BadInput(f"{path} holds no route record: the file is damaged; run 'sumo-scimm eval ... --resume' "
+                       "to run its routes again, or move records.jsonl away to report Tables 3 and 4 alone")
     return out
 
 

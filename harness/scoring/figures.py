@@ -9,6 +9,9 @@ from pathlib import Path
 import numpy as np
 
 from files.atomic import write_atomic
+from harness.common.errors import BadInput
+
+LOG_ROWS = {"steer": (), "x": (), "y": (), "yaw": (), "pred_path": (None, 2)}  # what the overlay reads
 
 
 def _world(points: np.ndarray, x: float, y: float, yaw: float) -> np.ndarray:
@@ -26,12 +29,16 @@ def waypoint_overlay(runs: dict[str, Path], route_key: str, out: Path, radius: f
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
+    from harness.common.npz import check_rows, read_npz
     logs = {}
     for name, folder in runs.items():
+        fix = f"evaluate run {folder} again, or leave it out of --runs"
         path = Path(folder) / "logs" / f"{route_key}.npz"
         if not path.is_file():
             raise FileNotFoundError(f"{path}: no log of route {route_key} in run {folder}")
-        logs[name] = np.load(path)
+        logs[name] = read_npz(path, "log", fix, LOG_ROWS)
+        if not check_rows(logs[name], LOG_ROWS, path, "log", fix):
+            raise BadInput(f"log {path} holds no tick: {fix}")
     first = next(iter(logs.values()))
     k = int(np.argmax(np.abs(first["steer"])))
     centre = np.array([first["x"][k], first["y"][k]])

@@ -41,9 +41,11 @@ def _sorted(records: list[dict]) -> list[dict]:
 
 
 def _write_csv(path: Path, fieldnames, rows) -> None:
-    """A CSV file with these columns (other keys of the row dicts left out), written whole."""
+    """A CSV file with these columns (other keys of the row dicts left out), written whole,
+    in UTF-8; text that is not (an agent's message holding undecodable bytes, which Python
+    keeps as lone surrogates) is written with backslash escapes."""
     def write(tmp: Path) -> None:
-        with open(tmp, "w", newline="") as f:
+        with open(tmp, "w", newline="", encoding="utf-8", errors="backslashreplace") as f:
             w = csv.DictWriter(f, fieldnames=fieldnames, extrasaction="ignore")
             w.writeheader()
             w.writerows(rows)

@@ -25,8 +25,12 @@ and as many rows as it has records.
 ``record_line_problem`` checks one line of records.jsonl before ``--resume`` keeps it: a
 JSON object (``no_duplicates``: no key twice) with only the fields ``eval`` writes
 (harness.scoring.records' RECORD_FIELDS and ``JSONL_FIELDS``), the ones every record has
-present, each of its type and in its range, and a Leaderboard record (``lb``) that passes
-``record_problem``.
+present, each of its type and in its range, a status a route can have (``ROUTE_STATUSES``),
+and a Leaderboard record (``lb``) as the scorer writes and reads it (``lb_problem``: only
+its fields, an ``index``, every infraction key a known one holding a list of messages,
+every number a finite number in its range, not text) that says what the line's own columns
+say (route id, status, DS/RC/IS, infraction counts). Whether the line is a route run of
+the resumed run, and the only one of its key, is checked by harness.runs.runner.
 """
 from __future__ import annotations
 
@@ -37,7 +41,9 @@ import math
 from pathlib import Path
 
 from files.compressed import read_text
+from harness.scoring.infractions import KEYS
 from harness.scoring.records import COUNT_KEYS, RECORD_FIELDS, STABILITY
+from harness.scoring.statuses import FAILED, PERFECT, STATUSES
 
 # field -> (low, high, low is open)
 SCORE_RANGES = {"score_route": (0.0, 100.0, False), "score_penalty": (0.0, 1.0, False),
@@ -219,6 +225,89 @@ _OPTIONAL_NUMBERS = {"outside_lanes_pct": (0.0, 100.0, False), "collisions_per_k
                      "smoothness": (0.0, 1.0, False)}
 
 
+# a Leaderboard route record as eval writes it (harness.scoring.scores.route_record), with
+# Bench2Drive's keys under --rules b2d (harness.scoring.scores.B2D_KEYS)
+LB_FIELDS = ("index", "route_id", "status", "num_infractions", "infractions", "scores", "meta")
+LB_B2D_FIELDS = ("scenario_name", "weather_id", "save_name", "town_name")
+# the statuses of a route record (harness.scoring.scores.route_status): Perfect, Completed,
+# Failed, or "Failed - <message>" of a route-ending infraction or a crash
+ROUTE_STATUSES = frozenset({PERFECT, FAILED, *STATUSES})
+
+
+def _whole(value) -> bool:
+    return isinstance(value, int) and not isinstance(value, bool) and value >= 0
+
+
+def lb_problem(lb) -> str | None:
+    """What is wrong with the Leaderboard record ``lb`` of a records.jsonl line, read as
+    strictly as eval writes it (None if nothing): only LB_FIELDS (and Bench2Drive's), all
+    present; ``index`` and ``num_infractions`` whole numbers, the latter the number of
+    messages; a status of ROUTE_STATUSES; ``infractions`` every key of the Leaderboard's,
+    each a list of texts; ``scores`` and ``meta`` finite numbers (not text) in their ranges;
+    then ``record_problem`` (the numbers in the messages)."""
+    if not isinstance(lb, dict):
+        return f"is {_shown(lb)}, not a record"
+    unknown = sorted(set(lb) - set(LB_FIELDS) - set(LB_B2D_FIELDS))
+    if unknown:
+        return f"has an unknown field {_shown(unknown[0], 40)}"
+    missing = [k for k in LB_FIELDS if k not in lb]
+    if missing:
+        return f"has no {missing[0]!r}"
+    for k in ("index", "num_infractions"):
+        if not _whole(lb[k]):
+            return f"{k} is {_shown(lb[k])}, not a whole number >= 0"
+    for k in ("route_id", *(b for b in LB_B2D_FIELDS if b in lb)):
+        v = lb[k]  # Bench2Drive's scenario_name and weather_id may be null, its weather_id a number
+        if not (isinstance(v, str) or (k in LB_B2D_FIELDS[:2] and v is None) or (k == "weather_id" and _whole(v))):
+            return f"{k} is {_shown(v)}, not text"
+    if lb["status"] not in ROUTE_STATUSES:
+        return f"status {_shown(lb['status'], 40)} is not a route status"
+    inf = lb["infractions"]
+    if not isinstance(inf, dict):
+        return f"infractions is {_shown(inf)}, not a table of infraction lists"
+    for k, messages in inf.items():
+        if k not in KEYS:
+            return f"infractions has an unknown key {_shown(k, 40)}"
+        if not isinstance(messages, list) or not all(isinstance(m, str) for m in messages):
+            return f"infractions.{k} is {_shown(messages)}, not a list of messages"
+    absent = [k for k in KEYS if k not in inf]
+    if absent:
+        return f"infractions has no {absent[0]!r} list"
+    n = sum(len(v) for v in inf.values())
+    if lb["num_infractions"] != n:
+        return f"num_infractions is {lb['num_infractions']}, but it lists {n} infractions"
+    for part, ranges in (("scores", SCORE_RANGES), ("meta", META_RANGES)):
+        table = lb[part]
+        if not isinstance(table, dict):
+            return f"{part} is {_shown(table)}, not a table"
+        extra = sorted(set(table) - set(ranges))
+        if extra:
+            return f"{part} has an unknown field {_shown(extra[0], 40)}"
+        for k, bounds in ranges.items():
+            if k not in table:
+                return f"{part}.{k} is missing"
+            bad = number_problem(table[k], bounds)
+            if bad:
+                return f"{part}.{k} {bad}"
+    return record_problem(lb)
+
+
+def _lb_mismatch(rec: dict) -> str | None:
+    """Which of the line's own columns says otherwise than its (valid) Leaderboard record."""
+    lb = rec["lb"]
+    if lb["route_id"] != f"RouteScenario_{rec['key']}":
+        return f"lb.route_id {_shown(lb['route_id'], 40)} is not RouteScenario_{rec['key']}"
+    if rec["status"] != lb["status"]:
+        return f"status {_shown(rec['status'], 40)} is not its Leaderboard record's {lb['status']!r}"
+    for k, lb_key in (("ds", "score_composed"), ("rc", "score_route"), ("is", "score_penalty")):
+        if not math.isclose(rec[k], lb["scores"][lb_key], rel_tol=0.0, abs_tol=1e-6):
+            return f"{k} {rec[k]!r} is not its Leaderboard record's {lb_key} {lb['scores'][lb_key]!r}"
+    for k in COUNT_KEYS:
+        if k in rec and rec[k] != len(lb["infractions"][k]):
+            return f"{k} {rec[k]!r} is not the number of its Leaderboard record's {k} ({len(lb['infractions'][k])})"
+    return None
+
+
 def _undefined(value) -> bool:
     """A number recorded as undefined: null, or NaN."""
     return value is None or (isinstance(value, float) and math.isnan(value))
@@ -251,7 +340,11 @@ def record_line_problem(rec) -> str | None:
         bad = number_problem(rec[k], bounds)
         if bad:
             return f"{k} {bad}"
-    bad = record_problem(rec["lb"])
-    if bad is None and not isinstance(rec["lb"].get("infractions"), dict):
-        bad = "has no infraction lists"
-    return f"lb (its Leaderboard record) {bad}" if bad else None
+    if rec["status"] not in ROUTE_STATUSES:
+        return f"status {_shown(rec['status'], 40)} is not a route status"
+    if "episode_status" in rec and rec["episode_status"] not in STATUSES:
+        return f"episode_status {_shown(rec['episode_status'], 40)} is not how an episode ends"
+    bad = lb_problem(rec["lb"])
+    if bad:
+        return f"lb (its Leaderboard record) {bad}"
+    return _lb_mismatch(rec)

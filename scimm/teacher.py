@@ -47,7 +47,7 @@ from scimm.scene import conditioned
 from scimm.smoother import imm_smooth
 
 METHODS = ("fixed", "scimm", "smoother")
-# what load_inputs reads of an episode, one row per frame (harness.expert.dataset.check_rows)
+# what load_inputs reads of an episode, one row per frame (harness.common.npz.check_rows)
 INPUT_ROWS = {"x": (), "y": (), "yaw": (), "path": (20, 2), "speed_wps": (10, 2),
               **{k: () for name in CUES for k in CUE_SOURCES[name]}}
 BATCH = 16  # episodes per IMM batch

@@ -95,7 +95,7 @@ ACTOR_ROWS = {"scene_xy": (2,), "scene_yaw": (), "scene_size": (2,), "scene_cls"
 
 def check_log(log: Path) -> None:
     """BadInput naming the reference log and the fix unless it can be replayed: readable
-    (harness.expert.dataset.read_npz), with the scene state of this sumo-scimm, every
+    (harness.common.npz.read_npz), with the scene state of this sumo-scimm, every
     ``scene_*`` array holding one row per tick and the actors counted up by scene_offset.
     Reads the arrays' headers and scene_offset only."""
     from harness.common.npz import check_offsets, check_rows, npz_headers, read_npz

@@ -27,7 +27,7 @@ def _random_bytes(folder: Path) -> None:
 
 
 def _without_lb(folder: Path) -> None:
-    (folder / "records.jsonl").write_text('{"key": "0_rep0"}\n')  # once an IndexError traceback, 11 files left
+    (folder / "records.jsonl").write_text('{"key": "0_rep0"}\n')  # a line without its Leaderboard record
 
 
 def _hazard_a_number(folder: Path) -> None:
@@ -51,8 +51,8 @@ def _no_line(folder: Path) -> None:
     (_no_line, ["records.jsonl holds no route record", "damaged", "move records.jsonl away"]),
 ])
 def test_report_refuses_a_damaged_records_jsonl_before_writing_a_table(run, tmp_path, damage, words):
-    """Two arms: the good one's Tables 3 and 4 were written before the damaged one's
-    records.jsonl was read."""
+    """Two arms, the second one damaged: the first one's tables could be made, but no file is
+    written until every input has been read and checked."""
     bad = tmp_path / "bad"
     shutil.copytree(run, bad)
     damage(bad)

@@ -78,8 +78,9 @@ def _foreign(lines: list[str]) -> list[str]:
     (_edit(seed=5), 1, ["has seed 5"]),
 ])
 def test_resume_refuses_a_damaged_records_line_before_running(two_route_run, tmp_path, damage, line, words):
-    """Before, each of these was kept: the run went on, rewrote records.csv and results.json,
-    then ended in a traceback (KeyError, TypeError, ValueError), or scored the damage."""
+    """Each damage is refused before a route runs or a file is written: kept, it would make
+    the scorer fail (KeyError, TypeError, ValueError) after the tables were rewritten, or be
+    scored."""
     out = _copy(two_route_run, tmp_path)
     path = out / "records.jsonl"
     path.write_text("\n".join(damage(path.read_text().splitlines())) + "\n")

@@ -215,3 +215,32 @@ class IgnoresTerm(RouteFollower):
     def run_step(self, input_data, timestamp):
         time.sleep(0.01)
         return super().run_step(input_data, timestamp)
+
+
+class _Unprintable(RuntimeError):
+    def __str__(self):
+        raise SystemExit(7)
+
+
+class _AlwaysFinite(Control):
+    def is_finite(self) -> bool:
+        return True
+
+
+class Garbage(RouteFollower):
+    """From its second step in a worker, per route: 0 a Prediction of strings of the right
+    shape; 1 an exception whose ``__str__`` raises SystemExit; 2 a NaN Control whose own
+    ``is_finite`` says it is finite; 3 a Control of strings."""
+
+    def run_step(self, input_data, timestamp):
+        control = super().run_step(input_data, timestamp)
+        if not in_worker() or timestamp < 0.1:
+            return control
+        rid = self.plan.route_id
+        if rid == "0":
+            return control, Prediction(path=np.full((20, 2), "a"))
+        if rid == "1":
+            raise _Unprintable()
+        if rid == "2":
+            return _AlwaysFinite(float("nan"), 0.5, 0.0)
+        return Control("left", 0.5, 0.0)

@@ -558,3 +558,19 @@ def test_a_gzip_bomb_is_refused_after_reading_at_most_the_limit(tmp_path, capsys
     assert bomb.stat().st_size < 5000
     assert main(["score", str(bomb)]) == 2
     assert "decompresses to more than 1 MB" in one_error_line(capsys)
+
+
+def test_agent_garbage_is_the_agents_crash_not_the_simulations(tmp_path, monkeypatch):
+    """Checked by the harness, not by the agent's own objects: a Prediction of strings, an
+    exception that cannot be printed, a NaN Control that says it is finite, a Control of
+    strings: each route is 'Failed - Agent crashed' with the reason, and the run goes on."""
+    monkeypatch.setenv("CHECK_PID", str(os.getpid()))
+    out = tmp_path / "run"
+    assert main(["eval", "--routes", "town12_smoke", "--workers", "1", "--agent", "tests.hostile_agents:Garbage",
+                 "--out", str(out)]) == 0
+    recs = {r["route_id"]: r for r in map(json.loads, (out / "records.jsonl").read_text().splitlines())}
+    assert {k: r["status"] for k, r in recs.items()} == dict.fromkeys("0123", "Failed - Agent crashed")
+    assert "Prediction.path holds <U1 values, not numbers" in recs["0"]["message"]
+    assert "_Unprintable: (its message could not be made" in recs["1"]["message"]
+    assert "non-finite control" in recs["2"]["message"]
+    assert "Control fields must be numbers, got str, float, float" in recs["3"]["message"]

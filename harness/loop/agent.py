@@ -40,6 +40,8 @@ from __future__ import annotations
 import contextlib
 import copy
 import importlib
+import math
+import numbers
 import os
 import signal
 import threading
@@ -157,9 +159,19 @@ def _shown(value, width: int = 40) -> str:
     return text if len(text) <= width else f"{text[:width]}... ({len(text)} characters)"
 
 
+def exception_text(exc: BaseException) -> str:
+    """``str(exc)``, or a note where making it fails (an agent's exception whose ``__str__``
+    raises, even SystemExit): the text of an agent's failure never fails the harness."""
+    try:
+        return str(exc)
+    except BaseException:  # noqa: BLE001 - whatever the agent's __str__ does
+        return "(its message could not be made: its __str__ raised)"
+
+
 def _reason(exc: BaseException) -> str:
     """``Type: first line of the message`` of an exception, cut to one readable line."""
-    text = str(exc).strip().splitlines()[0] if str(exc).strip() else ""
+    text = exception_text(exc).strip()
+    text = text.splitlines()[0] if text else ""
     return f"{type(exc).__name__}: {text[:160]}" if text else type(exc).__name__
 
 
@@ -341,19 +353,28 @@ _PRED_SHAPES = {"path": (20, 2), "speed_wps": (10, 2)}
 
 
 def split_output(out) -> tuple[Control, Prediction | None]:
-    """Normalise run_step's return value to (Control, Prediction or None); raises TypeError
-    (also for a Prediction whose arrays do not have the shapes it documents)."""
+    """Normalise run_step's return value to (Control, Prediction or None), checked here, not
+    by the agent's own objects: TypeError unless the Control's three fields are numbers and
+    a Prediction's arrays numbers of the shapes it documents; ValueError for a Control that
+    is not finite (the agent's crash, never the harness's)."""
     if isinstance(out, Control):
-        return out, None
-    if isinstance(out, tuple) and len(out) == 2 and isinstance(out[0], Control):
-        pred = out[1]
-        if pred is not None and not isinstance(pred, Prediction):
-            raise TypeError("run_step's second value must be a harness.loop.agent.Prediction")
-        if pred is not None:
-            for field, shape in _PRED_SHAPES.items():
-                value = getattr(pred, field)
-                if value is not None and getattr(value, "shape", None) != shape and np.shape(value) != shape:
-                    raise TypeError(f"Prediction.{field} has shape {np.shape(value)}, expected {shape} "
-                                    "(ego frame, metres)")
-        return out[0], pred
-    raise TypeError(f"run_step returned {type(out).__name__}, expected Control or (Control, Prediction)")
+        out = (out, None)
+    if not (isinstance(out, tuple) and len(out) == 2 and isinstance(out[0], Control)):
+        raise TypeError(f"run_step returned {type(out).__name__}, expected Control or (Control, Prediction)")
+    control, pred = out
+    values = (control.steer, control.throttle, control.brake)
+    if not all(isinstance(v, numbers.Real) for v in values):
+        raise TypeError(f"Control fields must be numbers, got {', '.join(type(v).__name__ for v in values)}")
+    if not all(math.isfinite(v) for v in values):
+        raise ValueError(f"non-finite control {control}")
+    if pred is not None and not isinstance(pred, Prediction):
+        raise TypeError("run_step's second value must be a harness.loop.agent.Prediction")
+    if pred is not None:
+        for field, shape in _PRED_SHAPES.items():
+            value = getattr(pred, field)
+            if value is not None and getattr(value, "shape", None) != shape and np.shape(value) != shape:
+                raise TypeError(f"Prediction.{field} has shape {np.shape(value)}, expected {shape} "
+                                "(ego frame, metres)")
+            if value is not None and np.asarray(value).dtype.kind not in "biuf":
+                raise TypeError(f"Prediction.{field} holds {np.asarray(value).dtype} values, not numbers")
+    return control, pred

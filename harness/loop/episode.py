@@ -31,7 +31,8 @@ from controller.vehicle import DT, LENGTH, WIDTH, Control, EgoState
 from harness.common.stops import is_stop, watch_stops
 from harness.scoring import criteria
 from harness.scoring.statuses import FAILED_AGENT, FAILED_SETUP, FAILED_SIMULATION
-from harness.loop.agent import Prediction, agent_call, agent_for, forget_agent, split_output, validate_sensors
+from harness.loop.agent import (Prediction, agent_call, agent_for, exception_text, forget_agent, split_output,
+                                validate_sensors)
 from harness.loop.deadline import AGENT_TIMEOUT, deadline_alarm, step_with_deadline
 from harness.loop.scene_log import SceneLog
 from harness.sim.contacts import overlaps
@@ -161,7 +162,7 @@ def run_episode(route: Route, agent_name: str, agent_config: str | None, seed: i
                 if is_stop(exc, stops):
                     raise
                 message = f"{message}; " if message else ""
-                message += f"destroy() raised {type(exc).__name__}: {exc}"
+                message += f"destroy() raised {type(exc).__name__}: {exception_text(exc)}"
                 forget_agent(agent_name)
             if status in (FAILED_AGENT, FAILED_SETUP):  # an instance that failed is not driven again
                 forget_agent(agent_name)
@@ -214,7 +215,7 @@ def _drive(run: _Run, route: Route, net, plan: GlobalPlan, world: World, rngs: t
             if is_stop(exc, stops):  # the user's Ctrl-C or SIGTERM, not the agent's
                 raise
             run.loop_time = wallclock.perf_counter() - loop0
-            return FAILED_AGENT, f"{type(exc).__name__}: {exc}", ends.done.rc
+            return FAILED_AGENT, f"{type(exc).__name__}: {exception_text(exc)}", ends.done.rc
         run.log.scene.add(world.time, s, progress, snap, lights_now, prop_boxes, drawn)  # the scene the agent saw
         s = ego.step(control)
         ego_s = float(plan.s[progress])
@@ -251,18 +252,15 @@ def _setup_agent(run: _Run, agent_name: str, agent_config: str | None, plan: Glo
     except BaseException as exc:  # noqa: BLE001 - any agent failure is recorded, the run goes on
         if is_stop(exc, stops):
             raise
-        raise _AgentSetupError(f"{type(exc).__name__}: {exc}") from exc
+        raise _AgentSetupError(f"{type(exc).__name__}: {exception_text(exc)}") from exc
     return specs
 
 
 def _agent_step(agent, inputs: dict, timestamp: float, timeout: float,
                 alarm: bool) -> tuple[Control, Prediction | None]:
-    """The agent's control and prediction for one tick, under the step deadline; a
-    non-finite control raises ValueError."""
-    control, pred = split_output(step_with_deadline(agent, inputs, timestamp, timeout, alarm))
-    if not control.is_finite():
-        raise ValueError(f"non-finite control {control}")
-    return control, pred
+    """The agent's control and prediction for one tick, under the step deadline, checked by
+    split_output (a non-finite control raises ValueError)."""
+    return split_output(step_with_deadline(agent, inputs, timestamp, timeout, alarm))
 
 
 class _RouteEnd:

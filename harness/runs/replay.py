@@ -52,7 +52,8 @@ from files.atomic import savez_atomic, write_atomic
 from harness.common.errors import BadInput
 from harness.common.lock import FolderLock
 from harness.common.progress import progress as show_progress
-from harness.loop.agent import agent_call, agent_for, check_agent_setup, forget_agent, split_output, validate_sensors
+from harness.loop.agent import (agent_call, agent_for, check_agent_setup, exception_text, forget_agent, split_output,
+                                validate_sensors)
 from harness.loop.deadline import AGENT_TIMEOUT, deadline_alarm, step_with_deadline
 from harness.loop.episode import sensor_inputs
 from harness.runs.jobs import hung_message
@@ -165,7 +166,7 @@ def replay_route(job: ReplayJob) -> list[dict]:
                 inputs = sensor_inputs(specs[i], sc.ego, plan, sc.progress, sc.snap, None, frame.copy)
                 control, pred = split_output(step_with_deadline(agent, inputs, sc.timestamp, job.timeout, alarm, i))
             except Exception as exc:  # noqa: BLE001
-                messages[i] = f"tick {t}: {type(exc).__name__}: {exc}"
+                messages[i] = f"tick {t}: {type(exc).__name__}: {exception_text(exc)}"
                 forget_agent(job.names[i], i)
                 agents[i] = None
                 continue
@@ -181,7 +182,7 @@ def replay_route(job: ReplayJob) -> list[dict]:
                 with agent_call(job.timeout, i):
                     agent.destroy()
         except Exception as exc:  # noqa: BLE001 - destroy errors must not hide the route's outputs
-            messages[i] = messages[i] or f"destroy() raised {type(exc).__name__}: {exc}"
+            messages[i] = messages[i] or f"destroy() raised {type(exc).__name__}: {exception_text(exc)}"
             forget_agent(job.names[i], i)
     savez_atomic(Path(job.out) / f"{job.key}.npz", **{f"a{i}_{k}": v for i, o in enumerate(outs) for k, v in o.items()})
     v = log["v"][:n]

@@ -109,8 +109,8 @@ def test_the_committed_leaderboard_records_pass_the_resume_check():
 
 @pytest.mark.parametrize("extra", [
     '{"key": "0_rep0"}\n',
-    '{"key": "0_rep0", "host": "vm", "pid": 1, "routes": 1, "rss_mb": "big"}\n',
-    '{"key": "0_rep0", "host": ["vm"], "pid": 1, "routes": 1, "rss_mb": 300.0}\n',
+    '{"key": "0_rep0", "host": "node1", "pid": 1, "routes": 1, "rss_mb": "big"}\n',
+    '{"key": "0_rep0", "host": ["node1"], "pid": 1, "routes": 1, "rss_mb": 300.0}\n',
 ])
 def test_a_damaged_workers_line_is_left_out_of_the_memory_line(two_route_run, tmp_path, extra):
     """Before: a KeyError or TypeError after every route had run and every file was written."""

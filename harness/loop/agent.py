@@ -363,7 +363,7 @@ def split_output(out) -> tuple[Control, Prediction | None]:
         raise TypeError(f"run_step returned {type(out).__name__}, expected Control or (Control, Prediction)")
     control, pred = out
     values = (control.steer, control.throttle, control.brake)
-    if not all(isinstance(v, numbers.Real) for v in values):
+    if not all(type(v) is float or isinstance(v, numbers.Real) for v in values):  # float: the common case, cheap
         raise TypeError(f"Control fields must be numbers, got {', '.join(type(v).__name__ for v in values)}")
     if not all(math.isfinite(v) for v in values):
         raise ValueError(f"non-finite control {control}")
@@ -375,6 +375,7 @@ def split_output(out) -> tuple[Control, Prediction | None]:
             if value is not None and getattr(value, "shape", None) != shape and np.shape(value) != shape:
                 raise TypeError(f"Prediction.{field} has shape {np.shape(value)}, expected {shape} "
                                 "(ego frame, metres)")
-            if value is not None and np.asarray(value).dtype.kind not in "biuf":
+            dtype = getattr(value, "dtype", None) if value is not None else None
+            if value is not None and (dtype if dtype is not None else np.asarray(value).dtype).kind not in "biuf":
                 raise TypeError(f"Prediction.{field} holds {np.asarray(value).dtype} values, not numbers")
     return control, pred
